@@ -1,0 +1,1 @@
+"""Controllers: turn an action in a control mode into PD joint targets."""

@@ -1,0 +1,168 @@
+"""The five control modes. Each maps an action (last entry: gripper, -1 open .. 1 closed) to arm joint targets.
+
+End-effector modes solve IK with mink on the MuJoCo twin of the simulated Panda. Poses are in the robot's
+base frame (x forward, z up, origin at the base); rotations are axis-angle vectors.
+
+| mode                | arm action                          | bounds             |
+|---------------------|-------------------------------------|--------------------|
+| pd_joint_delta_pos  | joint position deltas               | +-0.1 rad          |
+| pd_joint_pos        | absolute joint targets              | joint limits       |
+| pd_ee_delta_pos     | TCP translation                     | +-0.1 m            |
+| pd_ee_delta_pose    | TCP translation, rotation           | +-0.1 m, +-0.1 rad |
+| pd_ee_pose          | absolute TCP position, rotation     | +-1 m, +-pi rad    |
+
+Deltas accumulate on the previous target, as a real arm's impedance controller integrates commands: ten
++1 cm steps move the TCP 10 cm once the arm settles, however the PD drives lag. So that a blocked arm does not
+wind up, a target never leads the measured state by more than `MAX_JOINT_LEAD` / `MAX_POS_LEAD` /
+`MAX_ROT_LEAD`. Rotation deltas turn the TCP about axes parallel to the base frame's, centred at the TCP.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+
+CONTROL_MODES = ("pd_joint_delta_pos", "pd_joint_pos", "pd_ee_delta_pos", "pd_ee_delta_pose", "pd_ee_pose")
+MAX_JOINT_LEAD = 0.2  # rad
+MAX_POS_LEAD = 0.1  # m
+MAX_ROT_LEAD = 0.4  # rad
+
+
+def _box(low, high) -> spaces.Box:
+    low = np.append(np.asarray(low, dtype=np.float32), -1.0).astype(np.float32)
+    high = np.append(np.asarray(high, dtype=np.float32), 1.0).astype(np.float32)
+    return spaces.Box(low, high, dtype=np.float32)
+
+
+def _limit_rotation_lead(target: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    rotvec = matrix_to_axis_angle(target @ measured.T)
+    angle = float(np.linalg.norm(rotvec))
+    if angle <= MAX_ROT_LEAD:
+        return target
+    return axis_angle_to_matrix(rotvec * (MAX_ROT_LEAD / angle)) @ measured
+
+
+class Controller:
+    """Keeps the arm's joint target (and, for end-effector modes, the TCP target) between steps."""
+
+    mode: str
+    action_space: spaces.Box
+
+    def __init__(self, arm_limits: np.ndarray, kinematics_factory):
+        self.arm_limits = arm_limits
+        self._kinematics_factory = kinematics_factory
+        self._kinematics = None
+        self.joint_target = None  # (7,) last arm joint target
+        self.tcp_target = None  # 4x4 base-frame TCP target of end-effector modes
+
+    @property
+    def kinematics(self):
+        if self._kinematics is None:  # built on first use: joint modes never pay for MuJoCo
+            self._kinematics = self._kinematics_factory()
+        return self._kinematics
+
+    def reset(self, arm_qpos: np.ndarray) -> None:
+        self.joint_target = np.array(arm_qpos, dtype=np.float64)
+        self.tcp_target = None
+
+    def arm_targets(self, arm_action: np.ndarray, arm_qpos: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _clip_to_limits(self, q: np.ndarray) -> np.ndarray:
+        return np.clip(q, self.arm_limits[:, 0], self.arm_limits[:, 1])
+
+    def _solve(self, target: np.ndarray) -> np.ndarray:
+        self.tcp_target = target
+        q, _ = self.kinematics.solve(target, self.joint_target)
+        self.joint_target = self._clip_to_limits(q)
+        return self.joint_target
+
+
+class JointDeltaPos(Controller):
+    mode = "pd_joint_delta_pos"
+
+    def __init__(self, arm_limits, kinematics_factory):
+        super().__init__(arm_limits, kinematics_factory)
+        self.action_space = _box(np.full(7, -0.1), np.full(7, 0.1))
+
+    def arm_targets(self, arm_action, arm_qpos):
+        target = np.clip(self.joint_target + arm_action, arm_qpos - MAX_JOINT_LEAD, arm_qpos + MAX_JOINT_LEAD)
+        self.joint_target = self._clip_to_limits(target)
+        return self.joint_target
+
+
+class JointPos(Controller):
+    mode = "pd_joint_pos"
+
+    def __init__(self, arm_limits, kinematics_factory):
+        super().__init__(arm_limits, kinematics_factory)
+        self.action_space = _box(arm_limits[:, 0], arm_limits[:, 1])
+
+    def arm_targets(self, arm_action, arm_qpos):
+        self.joint_target = self._clip_to_limits(arm_action.astype(np.float64))
+        return self.joint_target
+
+
+class _EEDelta(Controller):
+    """Shared by the delta end-effector modes: accumulate on the TCP target, bounded lead over the TCP."""
+
+    def _delta_target(self, translation, rotation, arm_qpos) -> np.ndarray:
+        measured = self.kinematics.tcp_pose(arm_qpos)
+        target = measured.copy() if self.tcp_target is None else self.tcp_target.copy()
+        target[:3, 3] = np.clip(target[:3, 3] + translation, measured[:3, 3] - MAX_POS_LEAD,
+                                measured[:3, 3] + MAX_POS_LEAD)
+        if rotation is not None:
+            target[:3, :3] = _limit_rotation_lead(axis_angle_to_matrix(rotation) @ target[:3, :3], measured[:3, :3])
+        return self._solve(target)
+
+
+class EEDeltaPos(_EEDelta):
+    mode = "pd_ee_delta_pos"
+
+    def __init__(self, arm_limits, kinematics_factory):
+        super().__init__(arm_limits, kinematics_factory)
+        self.action_space = _box(np.full(3, -0.1), np.full(3, 0.1))
+
+    def arm_targets(self, arm_action, arm_qpos):
+        return self._delta_target(arm_action[:3], None, arm_qpos)
+
+
+class EEDeltaPose(_EEDelta):
+    mode = "pd_ee_delta_pose"
+
+    def __init__(self, arm_limits, kinematics_factory):
+        super().__init__(arm_limits, kinematics_factory)
+        self.action_space = _box(np.full(6, -0.1), np.full(6, 0.1))
+
+    def arm_targets(self, arm_action, arm_qpos):
+        return self._delta_target(arm_action[:3], arm_action[3:6], arm_qpos)
+
+
+class EEPose(Controller):
+    mode = "pd_ee_pose"
+
+    def __init__(self, arm_limits, kinematics_factory):
+        super().__init__(arm_limits, kinematics_factory)
+        self.action_space = _box([-1, -1, -1, -np.pi, -np.pi, -np.pi], [1, 1, 1, np.pi, np.pi, np.pi])
+
+    def arm_targets(self, arm_action, arm_qpos):
+        target = np.eye(4)
+        target[:3, :3] = axis_angle_to_matrix(arm_action[3:6])
+        target[:3, 3] = arm_action[:3]
+        return self._solve(target)
+
+
+def pose_to_ee_action(tcp_pose: np.ndarray) -> np.ndarray:
+    """The `pd_ee_pose` arm action that commands a 4x4 base-frame TCP pose."""
+    return np.concatenate([tcp_pose[:3, 3], matrix_to_axis_angle(tcp_pose[:3, :3])])
+
+
+_CONTROLLERS = {c.mode: c for c in (JointDeltaPos, JointPos, EEDeltaPos, EEDeltaPose, EEPose)}
+
+
+def make_controller(mode: str, arm_limits: np.ndarray, kinematics_factory) -> Controller:
+    if mode not in _CONTROLLERS:
+        raise ValueError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
+    return _CONTROLLERS[mode](arm_limits, kinematics_factory)

@@ -1,0 +1,87 @@
+"""`kitbench doctor`: is this machine ready to simulate, render and decode video?
+
+Each check reports a line; the exit status is non-zero when any required check fails, with a message that
+says what to install or run.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+import platform
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+SOFTWARE_RENDERERS = ("llvmpipe", "lavapipe", "swiftshader", "softpipe")
+PACKAGES = ("kitbench", "sapien", "mujoco", "mink", "torch", "lerobot", "gymnasium", "mcap")
+
+
+@dataclass
+class Check:
+    name: str
+    ok: bool
+    detail: str
+    fix: str = ""
+
+
+def check_versions() -> list[Check]:
+    checks = [Check("python", sys.version_info[:2] == (3, 12), platform.python_version(),
+                    "kitbench needs Python 3.12 (lerobot 0.6 requires it)")]
+    for name in PACKAGES:
+        try:
+            checks.append(Check(name, True, md.version(name)))
+        except md.PackageNotFoundError:
+            checks.append(Check(name, False, "not installed", "run `make test` (or `uv sync --frozen`)"))
+    return checks
+
+
+def check_vulkan() -> Check:
+    """Create SAPIEN's render system and name the Vulkan device it picked."""
+    fix = ("no usable Vulkan device: run `make demo` as root to install one (Mesa >= 25 `mesa-vulkan-drivers` "
+           "for CPU rendering, from bookworm-backports on Debian 12), or install your GPU's Vulkan driver and "
+           "`libvulkan1`. State-only simulation works without it.")
+    try:
+        import sapien
+
+        device = sapien.render.RenderSystem().device
+        name = device.name
+    except Exception as exc:  # noqa: BLE001 - any failure here means "cannot render"
+        return Check("vulkan", False, f"{type(exc).__name__}: {exc}", fix)
+    kind = "CPU software renderer" if any(s in name.lower() for s in SOFTWARE_RENDERERS) else "GPU"
+    return Check("vulkan", True, f"{name} ({kind})")
+
+
+def check_video_decoding() -> Check:
+    """Encode a tiny clip with ffmpeg and decode it with torchcodec, the way lerobot reads datasets."""
+    fix = "install FFmpeg (`apt-get install ffmpeg`, done by `make test` when root) for torchcodec video decoding"
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            clip = Path(tmp) / "probe.mp4"
+            subprocess.run(
+                ["ffmpeg", "-loglevel", "error", "-f", "lavfi", "-i", "testsrc=size=64x64:rate=10:duration=0.5",
+                 "-pix_fmt", "yuv420p", "-c:v", "libx264", str(clip)],
+                check=True, capture_output=True, timeout=60,
+            )
+            from torchcodec.decoders import VideoDecoder
+
+            frames = VideoDecoder(str(clip))[:]
+            n = int(frames.shape[0])
+    except FileNotFoundError:
+        return Check("video", False, "ffmpeg not found", fix)
+    except Exception as exc:  # noqa: BLE001
+        return Check("video", False, f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", fix)
+    return Check("video", n == 5, f"ffmpeg + torchcodec decode ok ({n} frames)", fix)
+
+
+def run_doctor(stream=sys.stdout) -> int:
+    checks = [*check_versions(), check_vulkan(), check_video_decoding()]
+    width = max(len(c.name) for c in checks)
+    for c in checks:
+        print(f"{'ok ' if c.ok else 'BAD'} {c.name:<{width}}  {c.detail}", file=stream)
+    failed = [c for c in checks if not c.ok]
+    for c in failed:
+        print(f"\n{c.name}: {c.fix}", file=stream)
+    print("\nall checks passed" if not failed else f"\n{len(failed)} check(s) failed", file=stream)
+    return 1 if failed else 0

@@ -1,0 +1,96 @@
+"""LiftPegUpright-v1: stand a peg that lies on the table upright.
+
+Success is geometric: the peg's long axis within 0.08 rad of vertical (either end up, any yaw) and its centre
+within 5 mm of 0.12 m (its half-length) above the table. The reference framework's check (the third angle of an
+XYZ Euler decomposition) accepts a horizontal peg held at 12 cm and rejects a truly upright one; this one does not.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import sapien
+from sapien import physx
+
+from kitbench.envs.observations import pose7
+from kitbench.envs.tabletop import TabletopEnv
+from kitbench.geometry import quat_to_matrix, tilt_from_vertical
+from kitbench.sim.cameras import CameraSpec
+from kitbench.sim.scene import set_actor_pose
+
+PEG_HALF_WIDTH = 0.025
+PEG_HALF_LENGTH = 0.12
+PEG_DENSITY = 1000.0
+# PhysX pairs a finger pad with the peg at the lower of their frictions; at 0.3 (a common default) a peg held
+# 6 cm off-centre pivots 6 degrees in the grasp when swung upright, at 1.0 it pivots 2.
+PEG_FRICTION = 1.0
+RED = (176 / 255, 14 / 255, 14 / 255, 1.0)
+BLUE = (12 / 255, 42 / 255, 160 / 255, 1.0)
+MAX_TILT = 0.08  # rad
+MAX_Z_ERROR = 0.005  # m
+LYING_QUAT = (math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0)  # long axis along world x
+
+
+def peg_success(position, quaternion) -> tuple[bool, float, float]:
+    """(success, tilt from vertical in rad, centre height error in m) for a peg pose."""
+    axis = quat_to_matrix(quaternion)[:, 0]
+    tilt = tilt_from_vertical(axis)
+    z_error = abs(float(position[2]) - PEG_HALF_LENGTH)
+    return (tilt < MAX_TILT and z_error < MAX_Z_ERROR), tilt, z_error
+
+
+def build_peg(scene: sapien.Scene, render: bool) -> sapien.Entity:
+    """A square-section peg along its x axis, its +x half red and its -x half blue."""
+    builder = scene.create_actor_builder()
+    half = [PEG_HALF_LENGTH, PEG_HALF_WIDTH, PEG_HALF_WIDTH]
+    material = physx.PhysxMaterial(PEG_FRICTION, PEG_FRICTION, 0.0)
+    builder.add_box_collision(half_size=half, material=material, density=PEG_DENSITY)
+    if render:
+        quarter = [PEG_HALF_LENGTH / 2, PEG_HALF_WIDTH, PEG_HALF_WIDTH]
+        for sign, colour in ((1, RED), (-1, BLUE)):
+            material = sapien.render.RenderMaterial(base_color=colour, roughness=0.5, specular=0.3)
+            builder.add_box_visual(sapien.Pose([sign * PEG_HALF_LENGTH / 2, 0, 0]), quarter, material=material)
+    return builder.build(name="peg")
+
+
+class LiftPegUprightEnv(TabletopEnv):
+    """Move a peg lying on the table to an upright position on the table (50 control steps)."""
+
+    supported_robots = ("panda",)
+    max_episode_steps = 50
+    max_dense_reward = 3.0
+    default_qpos_noise = 0.02
+
+    def _load_task(self, scene, render):
+        self.peg = None
+
+    def _sensor_cameras(self):
+        return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 128, 128, math.pi / 2)]
+
+    def _initialize_episode(self, rng, options):
+        if self.peg is not None:
+            self.scene.remove_actor(self.peg)
+        self.peg = build_peg(self.scene, self._renders)
+        xy = rng.uniform(-0.1, 0.1, 2)
+        set_actor_pose(self.peg, [xy[0], xy[1], PEG_HALF_WIDTH], LYING_QUAT)
+
+    def evaluate(self):
+        pose = self.peg.pose
+        success, tilt, z_error = peg_success(pose.p, pose.q)
+        return {"success": success, "tilt": tilt, "z_error": z_error}
+
+    def _task_state(self, info):
+        return {"peg_pose": pose7(self.peg.pose)}
+
+    def compute_dense_reward(self, info):
+        if info["success"]:
+            return 3.0
+        pose = self.peg.pose
+        upright = math.cos(info["tilt"])  # |peg axis . z|
+        height = 1.0 - math.tanh(5.0 * info["z_error"])
+        if self.robot.is_grasping(self.peg):
+            reach = 1.0
+        else:
+            reach = 1.0 - math.tanh(5.0 * float(np.linalg.norm(pose.p - self.robot.tcp_pose().p)))
+        return upright + height + reach / 5.0

@@ -1,0 +1,496 @@
+"""AssemblingKits episode files: schema (version 1), generator, loader and validator.
+
+An episode fixes everything random about a kit scene except the loose
+object's start pose: which shapes sit in which pockets at which yaw, which one
+the robot must place, which are already seated, and the colours.  Episodes
+are data, not code, so datasets recorded on one kitbench version can be
+replayed on another; the format is documented in
+docs/assembling-kits-episodes.md and versioned.
+
+    python -m kitbench.kits.episodes          # regenerate the packaged file
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from .board import (
+    BOARD_MARGIN,
+    BOARD_SIZE,
+    BOARD_TOP,
+    DEFAULT_CLEARANCE,
+    POCKET_DEPTH,
+    SLOT_FLOOR,
+    BoardGeometry,
+    SlotPose,
+    board_geometry,
+    layout_problems,
+    placed_slot_polygons,
+)
+from .shapes import NUM_SHAPES
+
+FORMAT = "kitbench/assembling-kits-episodes"
+VERSION = 1
+SLOTS_PER_KIT = 5
+DEFAULT_EPISODES = 300
+DEFAULT_FILE = "episodes.json"
+ROUND_DIGITS = 5  # 1e-5 m / rad: far below the 2 mm clearance, keeps the file small
+
+# Ten well-separated object colours (Tableau-10 without its grey, plus yellow).
+PALETTE: tuple[tuple[float, float, float], ...] = (
+    (0.122, 0.467, 0.706),  # blue
+    (1.0, 0.498, 0.055),  # orange
+    (0.173, 0.627, 0.173),  # green
+    (0.839, 0.153, 0.157),  # red
+    (0.58, 0.404, 0.741),  # purple
+    (0.549, 0.337, 0.294),  # brown
+    (0.89, 0.467, 0.761),  # pink
+    (0.09, 0.745, 0.812),  # cyan
+    (0.737, 0.741, 0.133),  # olive
+    (1.0, 0.85, 0.1),  # yellow
+)
+# Neutral board colours, chosen to contrast with every PALETTE entry.
+BOARD_PALETTE: tuple[tuple[float, float, float], ...] = (
+    (0.85, 0.85, 0.82),  # light grey
+    (0.8, 0.7, 0.55),  # light wood
+    (0.93, 0.93, 0.93),  # off-white
+    (0.6, 0.62, 0.65),  # slate
+)
+
+# Generator layout: a row of three and a row of two slots, rows along y at x = +/-ROW_X.
+ROW_X = 0.045
+ROW3_Y = (-0.085, 0.0, 0.085)
+ROW2_Y = (-0.045, 0.045)
+POSITION_JITTER = 0.004
+# The generator keeps at least this much board between neighbouring pockets.
+MIN_SLOT_GAP = 0.004
+_MAX_LAYOUT_ATTEMPTS = 200
+
+
+class EpisodeFileError(ValueError):
+    """An episode file (or dict) that does not follow the schema; the message names file and field."""
+
+
+# --------------------------------------------------------------------------- data classes
+
+
+@dataclass(frozen=True)
+class Slot:
+    shape_id: int
+    pos: tuple[float, float]
+    yaw: float
+
+    @property
+    def pose(self) -> SlotPose:
+        """(shape_id, x, y, yaw), the form board_geometry() takes."""
+        return (self.shape_id, self.pos[0], self.pos[1], self.yaw)
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    size: tuple[float, float] = BOARD_SIZE
+    top: float = BOARD_TOP
+    pocket_depth: float = POCKET_DEPTH
+    clearance: float = DEFAULT_CLEARANCE
+
+    @property
+    def floor(self) -> float:
+        """z of the pocket floors (where seated shapes' bottoms rest)."""
+        return self.top - self.pocket_depth
+
+
+@dataclass(frozen=True)
+class Episode:
+    index: int
+    kit_id: int
+    slots: tuple[Slot, ...]
+    obj_to_place: int
+    obj_in_place: tuple[int, ...]
+    board_color: tuple[float, float, float]
+    slot_colors: tuple[tuple[float, float, float], ...]
+
+    @property
+    def target_slot(self) -> Slot:
+        """The slot the loose object belongs in."""
+        return self.slots[self.obj_to_place]
+
+    @property
+    def target(self) -> tuple[int, tuple[float, float], float]:
+        """(shape_id, (x, y), yaw) of the target slot."""
+        s = self.target_slot
+        return s.shape_id, s.pos, s.yaw
+
+    @property
+    def target_shape_id(self) -> int:
+        return self.target_slot.shape_id
+
+    @property
+    def empty_slots(self) -> tuple[int, ...]:
+        """Slots that start empty and are not the target: distractor pockets."""
+        used = {self.obj_to_place, *self.obj_in_place}
+        return tuple(i for i in range(len(self.slots)) if i not in used)
+
+    def slot_poses(self) -> list[SlotPose]:
+        return [s.pose for s in self.slots]
+
+    def goal_pose(self, floor: float = SLOT_FLOOR) -> tuple[np.ndarray, float]:
+        """Seated pose of the object to place: (shape origin xyz, yaw); the origin is on its bottom face."""
+        return seated_pose(self.target_slot, floor)
+
+    def seated_pose(self, slot_index: int, floor: float = SLOT_FLOOR) -> tuple[np.ndarray, float]:
+        """Pose of a shape seated in any slot (for the obj_in_place objects)."""
+        return seated_pose(self.slots[slot_index], floor)
+
+    def to_dict(self) -> dict:
+        return {
+            "kit_id": self.kit_id,
+            "slots": [{"shape_id": s.shape_id, "pos": list(s.pos), "yaw": s.yaw} for s in self.slots],
+            "obj_to_place": self.obj_to_place,
+            "obj_in_place": list(self.obj_in_place),
+            "colors": {"board": list(self.board_color), "slots": [list(c) for c in self.slot_colors]},
+        }
+
+
+def seated_pose(slot: Slot, floor: float = SLOT_FLOOR) -> tuple[np.ndarray, float]:
+    return np.array([slot.pos[0], slot.pos[1], floor]), float(slot.yaw)
+
+
+@dataclass(frozen=True)
+class EpisodeSet:
+    source: str
+    board: BoardSpec
+    episodes: tuple[Episode, ...]
+
+    def __len__(self) -> int:
+        return len(self.episodes)
+
+    def __getitem__(self, i: int) -> Episode:
+        return self.episodes[i]
+
+    def __iter__(self) -> Iterator[Episode]:
+        return iter(self.episodes)
+
+    def goal_pose(self, i: int) -> tuple[np.ndarray, float]:
+        return self.episodes[i].goal_pose(self.board.floor)
+
+    def board_geometry(self, i: int) -> BoardGeometry:
+        """Board geometry of episode i (not cached: ~10-30 ms, callers cache per kit)."""
+        b = self.board
+        return board_geometry(self.episodes[i].slot_poses(), b.clearance, b.size, b.top, b.pocket_depth)
+
+    def to_dict(self) -> dict:
+        b = self.board
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "board": {"size": list(b.size), "top": b.top, "pocket_depth": b.pocket_depth, "clearance": b.clearance},
+            "episodes": [e.to_dict() for e in self.episodes],
+        }
+
+
+# --------------------------------------------------------------------------- generator
+
+
+def _slot_positions(rng: np.random.Generator) -> list[tuple[float, float]]:
+    """Template slot centres: a row of three and a row of two; which row is far from the robot is random."""
+    sign = 1.0 if rng.random() < 0.5 else -1.0
+    row3 = [(sign * ROW_X, y) for y in ROW3_Y]
+    row2 = [(-sign * ROW_X, y) for y in ROW2_Y]
+    return row3 + row2
+
+
+def _random_layout(rng: np.random.Generator, shapes: Sequence[int], clearance: float) -> list[dict]:
+    """Jittered template positions and uniform yaws, retried until the layout is valid after rounding."""
+    centres = _slot_positions(rng)
+    for _ in range(_MAX_LAYOUT_ATTEMPTS):
+        jitter = rng.uniform(-POSITION_JITTER, POSITION_JITTER, size=(len(shapes), 2))
+        yaws = rng.uniform(-math.pi, math.pi, size=len(shapes))
+        slots = [
+            {
+                "shape_id": int(sid),
+                "pos": [_r(cx + jx), _r(cy + jy)],
+                "yaw": _r(yaw),
+            }
+            for sid, (cx, cy), (jx, jy), yaw in zip(shapes, centres, jitter, yaws)
+        ]
+        polys = placed_slot_polygons([(s["shape_id"], *s["pos"], s["yaw"]) for s in slots], clearance)
+        if not layout_problems(polys, BOARD_SIZE, margin=BOARD_MARGIN, min_gap=MIN_SLOT_GAP):
+            return slots
+    raise RuntimeError(f"no valid layout for shapes {list(shapes)} after {_MAX_LAYOUT_ATTEMPTS} attempts")
+
+
+def _r(x: float) -> float:
+    return round(float(x), ROUND_DIGITS)
+
+
+def _generate_episode(rng: np.random.Generator, index: int, clearance: float) -> dict:
+    target = index % NUM_SHAPES
+    others = rng.choice([s for s in range(NUM_SHAPES) if s != target], size=SLOTS_PER_KIT - 1, replace=False)
+    shapes = [target, *(int(s) for s in others)]
+    order = rng.permutation(SLOTS_PER_KIT)
+    shapes = [shapes[k] for k in order]
+    obj_to_place = shapes.index(target)
+    slots = _random_layout(rng, shapes, clearance)
+    rest = [i for i in range(SLOTS_PER_KIT) if i != obj_to_place]
+    n_in_place = int(rng.integers(1, SLOTS_PER_KIT))  # 1..4: leaves 0..3 empty distractor pockets
+    in_place = sorted(int(i) for i in rng.choice(rest, size=n_in_place, replace=False))
+    colors = rng.choice(len(PALETTE), size=SLOTS_PER_KIT, replace=False)
+    board_color = BOARD_PALETTE[int(rng.integers(len(BOARD_PALETTE)))]
+    return {
+        "kit_id": index,
+        "slots": slots,
+        "obj_to_place": obj_to_place,
+        "obj_in_place": in_place,
+        "colors": {"board": list(board_color), "slots": [list(PALETTE[int(c)]) for c in colors]},
+    }
+
+
+def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: float = DEFAULT_CLEARANCE) -> dict:
+    """Deterministic episode set as a schema-v1 dict.
+
+    The target shape cycles through ids 0..19 so every shape is the object to
+    place n/20 times; everything else comes from one seeded numpy Generator,
+    consumed in a fixed order, so (n, seed, clearance) fully determine the output.
+    """
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    rng = np.random.default_rng(seed)
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "board": {"size": list(BOARD_SIZE), "top": BOARD_TOP, "pocket_depth": POCKET_DEPTH, "clearance": clearance},
+        "generator": {"function": "kitbench.kits.episodes.generate_episodes", "n": n, "seed": seed},
+        "episodes": [_generate_episode(rng, i, clearance) for i in range(n)],
+    }
+
+
+def dumps_episodes(data: dict) -> str:
+    """Compact JSON with one episode per line, so regenerated files diff readably."""
+    head = {k: v for k, v in data.items() if k != "episodes"}
+    compact = dict(separators=(",", ":"), allow_nan=False)
+    lines = [json.dumps(ep, **compact) for ep in data["episodes"]]
+    return json.dumps(head, **compact)[:-1] + ',"episodes":[\n' + ",\n".join(lines) + "\n]}\n"
+
+
+def default_episodes_path() -> Path:
+    """Source-tree location of the packaged episode file (for regeneration)."""
+    return Path(__file__).resolve().parent / "data" / DEFAULT_FILE
+
+
+def write_default_episodes(path: str | Path | None = None) -> Path:
+    """Regenerate the packaged episode file with the default arguments."""
+    path = Path(path) if path is not None else default_episodes_path()
+    data = generate_episodes()
+    validate_episodes(data, source=str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dumps_episodes(data), encoding="utf-8")
+    return path
+
+
+# --------------------------------------------------------------------------- loader / validator
+
+
+class _Checker:
+    """Type checks that raise EpisodeFileError naming the source and the JSON path."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, path: str, msg: str):
+        raise EpisodeFileError(f"{self.source}: {path}: {msg}" if path else f"{self.source}: {msg}")
+
+    def field(self, obj: dict, key: str, path: str) -> Any:
+        if key not in obj:
+            self.fail(path or "(top level)", f"missing field '{key}'")
+        return obj[key]
+
+    def obj(self, value: Any, path: str) -> dict:
+        if not isinstance(value, dict):
+            self.fail(path, f"expected an object, got {_describe(value)}")
+        return value
+
+    def list(self, value: Any, path: str, length: int | None = None, min_len: int = 0) -> list:
+        if not isinstance(value, list):
+            self.fail(path, f"expected a list, got {_describe(value)}")
+        if length is not None and len(value) != length:
+            self.fail(path, f"expected {length} entries, got {len(value)}")
+        if len(value) < min_len:
+            self.fail(path, f"expected at least {min_len} {'entry' if min_len == 1 else 'entries'}, got {len(value)}")
+        return value
+
+    def int(self, value: Any, path: str, lo: int | None = None) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(path, f"expected an integer, got {_describe(value)}")
+        if lo is not None and value < lo:
+            self.fail(path, f"expected an integer >= {lo}, got {value}")
+        return value
+
+    def num(self, value: Any, path: str, lo: float | None = None, hi: float | None = None, positive=False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(path, f"expected a number, got {_describe(value)}")
+        if not math.isfinite(value):
+            self.fail(path, f"expected a finite number, got {value}")
+        if positive and not value > 0:
+            self.fail(path, f"expected a positive number, got {value}")
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            self.fail(path, f"{value} outside [{lo}, {hi}]")
+        return float(value)
+
+    def vec(self, value: Any, path: str, n: int, **kw) -> tuple[float, ...]:
+        items = self.list(value, path, length=n)
+        return tuple(self.num(v, f"{path}[{i}]", **kw) for i, v in enumerate(items))
+
+
+def _describe(value: Any) -> str:
+    text = json.dumps(value) if not isinstance(value, float) or math.isfinite(value) else repr(value)
+    if len(text) > 40:
+        text = text[:37] + "..."
+    return f"{text} ({type(value).__name__})"
+
+
+def _check_board(c: _Checker, data: dict) -> BoardSpec:
+    board = c.obj(c.field(data, "board", ""), "board")
+    size = c.vec(c.field(board, "size", "board"), "board.size", 2, positive=True)
+    top = c.num(c.field(board, "top", "board"), "board.top", positive=True)
+    depth = c.num(c.field(board, "pocket_depth", "board"), "board.pocket_depth", positive=True)
+    if depth >= top:
+        c.fail("board.pocket_depth", f"pocket depth {depth} must be less than the board top {top}")
+    clearance = DEFAULT_CLEARANCE
+    if "clearance" in board:
+        clearance = c.num(board["clearance"], "board.clearance", lo=0.0)
+    return BoardSpec(size=(size[0], size[1]), top=top, pocket_depth=depth, clearance=clearance)
+
+
+def _check_slots(c: _Checker, ep: dict, path: str) -> tuple[Slot, ...]:
+    raw = c.list(c.field(ep, "slots", path), f"{path}.slots", min_len=1)
+    slots, seen = [], {}
+    for j, s in enumerate(raw):
+        sp = f"{path}.slots[{j}]"
+        c.obj(s, sp)
+        sid = c.int(c.field(s, "shape_id", sp), f"{sp}.shape_id")
+        if not 0 <= sid < NUM_SHAPES:
+            c.fail(f"{sp}.shape_id", f"unknown shape id {sid} (valid: 0..{NUM_SHAPES - 1})")
+        if sid in seen:
+            c.fail(f"{sp}.shape_id", f"duplicate shape id {sid} (also in slots[{seen[sid]}])")
+        seen[sid] = j
+        pos = c.vec(c.field(s, "pos", sp), f"{sp}.pos", 2)
+        yaw = c.num(c.field(s, "yaw", sp), f"{sp}.yaw")
+        slots.append(Slot(shape_id=sid, pos=(pos[0], pos[1]), yaw=yaw))
+    return tuple(slots)
+
+
+def _check_indices(c: _Checker, ep: dict, path: str, n_slots: int) -> tuple[int, tuple[int, ...]]:
+    span = f"(kit has {n_slots} slots: 0..{n_slots - 1})"
+    target = c.int(c.field(ep, "obj_to_place", path), f"{path}.obj_to_place")
+    if not 0 <= target < n_slots:
+        c.fail(f"{path}.obj_to_place", f"slot index {target} out of range {span}")
+    in_place = c.list(c.field(ep, "obj_in_place", path), f"{path}.obj_in_place")
+    seen: set[int] = set()
+    for k, v in enumerate(in_place):
+        ip = f"{path}.obj_in_place[{k}]"
+        c.int(v, ip)
+        if not 0 <= v < n_slots:
+            c.fail(ip, f"slot index {v} out of range {span}")
+        if v == target:
+            c.fail(ip, f"slot {v} is obj_to_place; it cannot also start in place")
+        if v in seen:
+            c.fail(ip, f"slot {v} listed twice")
+        seen.add(v)
+    return target, tuple(in_place)
+
+
+def _check_colors(c: _Checker, ep: dict, path: str, n_slots: int):
+    cp = f"{path}.colors"
+    colors = c.obj(c.field(ep, "colors", path), cp)
+    board = c.vec(c.field(colors, "board", cp), f"{cp}.board", 3, lo=0.0, hi=1.0)
+    raw = c.list(c.field(colors, "slots", cp), f"{cp}.slots")
+    if len(raw) != n_slots:
+        c.fail(f"{cp}.slots", f"expected one colour per slot ({n_slots}), got {len(raw)}")
+    slot_colors = tuple(c.vec(v, f"{cp}.slots[{k}]", 3, lo=0.0, hi=1.0) for k, v in enumerate(raw))
+    return board, slot_colors
+
+
+def _check_layout(c: _Checker, slots: Sequence[Slot], path: str, board: BoardSpec):
+    polys = placed_slot_polygons([s.pose for s in slots], board.clearance)
+    problems = layout_problems(polys, board.size)
+    if problems:
+        j, msg = problems[0]
+        c.fail(f"{path}.slots[{j}]", msg)
+
+
+def _check_episode(c: _Checker, ep: Any, i: int, board: BoardSpec) -> Episode:
+    path = f"episodes[{i}]"
+    c.obj(ep, path)
+    kit_id = c.int(c.field(ep, "kit_id", path), f"{path}.kit_id", lo=0)
+    slots = _check_slots(c, ep, path)
+    target, in_place = _check_indices(c, ep, path, len(slots))
+    board_color, slot_colors = _check_colors(c, ep, path, len(slots))
+    _check_layout(c, slots, path, board)
+    return Episode(
+        index=i,
+        kit_id=kit_id,
+        slots=slots,
+        obj_to_place=target,
+        obj_in_place=in_place,
+        board_color=board_color,
+        slot_colors=slot_colors,
+    )
+
+
+def validate_episodes(data: Any, source: str = "<episodes>") -> EpisodeSet:
+    """Check a parsed episode document against schema v1 and build the EpisodeSet."""
+    c = _Checker(source)
+    c.obj(data, "(top level)")
+    fmt = c.field(data, "format", "")
+    if fmt != FORMAT:
+        c.fail("format", f"expected {FORMAT!r}, got {_describe(fmt)}")
+    version = c.field(data, "version", "")
+    if isinstance(version, bool) or version != VERSION:
+        c.fail("version", f"unsupported version {_describe(version)} (supported: {VERSION})")
+    board = _check_board(c, data)
+    raw = c.list(c.field(data, "episodes", ""), "episodes", min_len=1)
+    episodes = tuple(_check_episode(c, ep, i, board) for i, ep in enumerate(raw))
+    return EpisodeSet(source=source, board=board, episodes=episodes)
+
+
+def _read_text(path: str | Path | None) -> tuple[str, str]:
+    if path is None:
+        res = resources.files("kitbench.kits").joinpath("data", DEFAULT_FILE)
+        return str(res), res.read_text(encoding="utf-8")
+    p = Path(path)
+    try:
+        return str(p), p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise EpisodeFileError(f"{p}: cannot read episode file: {e.strerror or e}") from e
+    except UnicodeDecodeError as e:
+        raise EpisodeFileError(f"{p}: not UTF-8 text: {e}") from e
+
+
+def load_episodes(path: str | Path | None = None) -> EpisodeSet:
+    """Load and validate an episode file (default: the one packaged with kitbench)."""
+    source, text = _read_text(path)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise EpisodeFileError(f"{source}: line {e.lineno} col {e.colno}: malformed JSON: {e.msg}") from e
+    return validate_episodes(data, source=source)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    path = write_default_episodes(argv[0] if argv else None)
+    eps = load_episodes(path)
+    print(f"wrote {len(eps)} episodes to {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""The SAPIEN layer shared by every task: scene, cameras, actor building."""

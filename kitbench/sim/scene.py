@@ -1,0 +1,99 @@
+"""Builds the SAPIEN scene every tabletop task stands in.
+
+A scene is created with a render system only when images are needed, so state-only use never touches Vulkan.
+Task frame: table top at z = 0, robot base at (-0.615, 0, 0) facing +x.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sapien
+from sapien import physx
+
+TABLE_HALF_SIZE = (0.9, 0.6, 0.46)  # a 1.8 x 1.2 m table, 0.92 m tall
+TABLE_CENTER = (-0.12, 0.0)
+GROUND_Z = -0.92
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Physics timing and solver settings (PhysX CPU)."""
+
+    sim_freq: int = 100
+    control_freq: int = 20
+    solver_position_iterations: int = 15
+    solver_velocity_iterations: int = 1
+    contact_offset: float = 0.02
+    rest_offset: float = 0.0
+    bounce_threshold: float = 2.0
+
+    def __post_init__(self):
+        if self.sim_freq <= 0 or self.control_freq <= 0:
+            raise ValueError(f"sim_freq and control_freq must be positive, got {self.sim_freq}, {self.control_freq}")
+        if self.sim_freq % self.control_freq:
+            raise ValueError(
+                f"sim_freq ({self.sim_freq}) must be a multiple of control_freq ({self.control_freq})"
+            )
+
+    @property
+    def substeps(self) -> int:
+        return self.sim_freq // self.control_freq
+
+
+def create_scene(config: SimConfig, render: bool) -> sapien.Scene:
+    """A fresh scene with PhysX CPU and, only if asked, a render system."""
+    scene_config = physx.PhysxSceneConfig()
+    scene_config.bounce_threshold = config.bounce_threshold
+    scene_config.enable_pcm = True
+    scene_config.enable_tgs = True
+    scene_config.enable_enhanced_determinism = True
+    physx.set_scene_config(scene_config)
+    physx.set_shape_config(contact_offset=config.contact_offset, rest_offset=config.rest_offset)
+    physx.set_body_config(
+        solver_position_iterations=config.solver_position_iterations,
+        solver_velocity_iterations=config.solver_velocity_iterations,
+        sleep_threshold=0.0,
+    )
+    systems = [physx.PhysxCpuSystem()]
+    if render:
+        systems.append(sapien.render.RenderSystem())
+    scene = sapien.Scene(systems)
+    scene.set_timestep(1.0 / config.sim_freq)
+    return scene
+
+
+def add_table_and_ground(scene: sapien.Scene, render: bool) -> sapien.Entity:
+    """A static table whose top is z = 0 and a floor below it."""
+    builder = scene.create_actor_builder()
+    half = np.array(TABLE_HALF_SIZE)
+    pose = sapien.Pose([TABLE_CENTER[0], TABLE_CENTER[1], -half[2]])
+    builder.add_box_collision(pose=pose, half_size=half)
+    if render:
+        material = sapien.render.RenderMaterial(base_color=[0.66, 0.55, 0.42, 1.0], roughness=0.7, specular=0.1)
+        builder.add_box_visual(pose=pose, half_size=half, material=material)
+    table = builder.build_static(name="table")
+    ground = scene.create_actor_builder()
+    ground.add_plane_collision(sapien.Pose([0, 0, GROUND_Z], [0.7071068, 0, -0.7071068, 0]))
+    if render:
+        ground.add_plane_visual(
+            sapien.Pose([0, 0, GROUND_Z], [0.7071068, 0, -0.7071068, 0]),
+            scale=[10, 10, 10],
+            material=sapien.render.RenderMaterial(base_color=[0.85, 0.85, 0.85, 1.0], roughness=0.9),
+        )
+    ground.build_static(name="ground")
+    if render:
+        scene.set_ambient_light([0.3, 0.3, 0.3])
+        scene.add_directional_light([1, 1, -1], [1, 1, 1], shadow=False)
+        scene.add_directional_light([0, 0, -1], [1, 1, 1])
+    return table
+
+
+def set_actor_pose(actor: sapien.Entity, p, q) -> None:
+    """Teleport a rigid actor and zero its velocity (a teleported body must not keep the old momentum)."""
+    actor.set_pose(sapien.Pose(np.asarray(p, dtype=np.float32), np.asarray(q, dtype=np.float32)))
+    body = actor.find_component_by_type(physx.PhysxRigidDynamicComponent)
+    if body is not None and not body.kinematic:
+        body.set_linear_velocity(np.zeros(3))
+        body.set_angular_velocity(np.zeros(3))
