@@ -68,11 +68,16 @@ class PandaKinematics:
         self.tcp_task.set_target(mink.SE3.from_matrix(target))
         tasks = [self.tcp_task, self.posture_task]
         converged = False
+        previous = np.inf
         for _ in range(max_iterations or self.max_iterations):
             err = self.tcp_task.compute_error(self.configuration)
-            if np.linalg.norm(err[:3]) < pos_tol and np.linalg.norm(err[3:]) < rot_tol:
+            pos_err, rot_err = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+            if pos_err < pos_tol and rot_err < rot_tol:
                 converged = True
                 break
+            if pos_err + rot_err > 0.9 * previous:  # stalled (a limit or the posture term): more is wasted
+                break
+            previous = pos_err + rot_err
             velocity = mink.solve_ik(self.configuration, tasks, self.dt, "daqp", damping=1e-6,
                                      limits=self.limits, constraints=self.constraints)
             self.configuration.integrate_inplace(velocity, self.dt)

@@ -63,15 +63,12 @@ class LiftPegUprightEnv(TabletopEnv):
     default_qpos_noise = 0.02
 
     def _load_task(self, scene, render):
-        self.peg = None
+        self.peg = build_peg(scene, render)
 
     def _sensor_cameras(self):
         return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 128, 128, math.pi / 2)]
 
     def _initialize_episode(self, rng, options):
-        if self.peg is not None:
-            self.scene.remove_actor(self.peg)
-        self.peg = build_peg(self.scene, self._renders)
         xy = rng.uniform(-0.1, 0.1, 2)
         set_actor_pose(self.peg, [xy[0], xy[1], PEG_HALF_WIDTH], LYING_QUAT)
 

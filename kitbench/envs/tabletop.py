@@ -63,19 +63,12 @@ class TabletopEnv(gym.Env):
         self.metadata = {**self.metadata, "render_fps": self.sim_config.control_freq}
         self._renders = obs_mode in IMAGE_OBS_MODES or render_mode == "rgb_array"
 
-        self.scene = create_scene(self.sim_config, render=self._renders)
-        add_table_and_ground(self.scene, render=self._renders)
-        self.robot = Panda(self.scene, ROBOTS[robot_uids], ROBOT_BASE, render=self._renders)
-        self.controller = make_controller(control_mode, self.robot.arm_limits, PandaKinematics)
-        self._load_task(self.scene, self._renders)
+        self.scene: sapien.Scene | None = None
+        self.robot: Panda | None = None
+        self._robot_spec = ROBOTS[robot_uids]
+        self.controller = make_controller(control_mode, self._arm_limits(), PandaKinematics)
         self._cameras: dict[str, Camera] = {}
         self._human_camera: Camera | None = None
-        if obs_mode in IMAGE_OBS_MODES:
-            specs = [*self._sensor_cameras(), *self.robot.spec.cameras]
-            self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in specs}
-        if render_mode == "rgb_array":
-            self._human_camera = Camera(self.scene, self._render_camera(), None)
-
         self.action_space = self.controller.action_space
         self.elapsed_steps = 0
         self._last_info: dict = {}
@@ -84,14 +77,11 @@ class TabletopEnv(gym.Env):
 
     # -- task hooks ------------------------------------------------------------------------------
     def _load_task(self, scene: sapien.Scene, render: bool) -> None:
+        """Build the task's actors into a fresh scene (visual shapes only when `render`)."""
         raise NotImplementedError
 
     def _initialize_episode(self, rng: np.random.Generator, options: dict) -> None:
-        """Build this episode's dynamic objects and place them.
-
-        Dynamic objects are built anew every episode rather than teleported: PhysX keeps per-body solver
-        history that would otherwise leak from one episode into the next and break seed determinism.
-        """
+        """Place the task's objects for a new episode."""
         raise NotImplementedError
 
     def evaluate(self) -> dict:
@@ -116,7 +106,7 @@ class TabletopEnv(gym.Env):
         rng = self.np_random
         noise = rng.normal(0.0, self.robot_init_qpos_noise, 7) if self.robot_init_qpos_noise > 0 else 0.0
         arm_qpos = READY_ARM_QPOS + noise
-        self._clear_contact_history(arm_qpos)
+        self._build_world()
         self.robot.reset(arm_qpos)
         self.controller.reset(arm_qpos)
         self._initialize_episode(rng, options)
@@ -156,20 +146,30 @@ class TabletopEnv(gym.Env):
         self.scene = None
 
     # -- internals --------------------------------------------------------------------------------
-    def _clear_contact_history(self, arm_qpos) -> None:
-        """Make a reset independent of the episode before it.
+    def _build_world(self) -> None:
+        """A fresh scene for every episode: table, robot, the task's objects and the cameras.
 
-        PhysX keeps contact manifolds and friction anchors for body pairs that stay near each other, so a
-        teleported object would start with the previous episode's contact history. Parking every dynamic body
-        apart and stepping once drops those pairs; the episode's real state is set afterwards.
+        PhysX keeps contact manifolds, friction anchors and pair orderings from earlier steps, so an episode
+        that reused the previous episode's scene would not be bitwise reproducible from its seed. Building
+        from cached parses takes a few milliseconds.
         """
-        self.robot.reset(arm_qpos)
-        for i, body in enumerate(self.scene.physx_system.rigid_dynamic_components):
-            if not body.kinematic:
-                body.entity.set_pose(sapien.Pose([100.0 + 10.0 * i, 100.0, 100.0]))
-                body.set_linear_velocity(np.zeros(3))
-                body.set_angular_velocity(np.zeros(3))
-        self.scene.step()
+        self.scene = create_scene(self.sim_config, render=self._renders)
+        add_table_and_ground(self.scene, render=self._renders)
+        self.robot = Panda(self.scene, self._robot_spec, ROBOT_BASE, render=self._renders)
+        self._load_task(self.scene, self._renders)
+        self._cameras, self._human_camera = {}, None
+        if self.obs_mode in IMAGE_OBS_MODES:
+            specs = [*self._sensor_cameras(), *self._robot_spec.cameras]
+            self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in specs}
+        if self.render_mode == "rgb_array":
+            self._human_camera = Camera(self.scene, self._render_camera(), None)
+
+    @staticmethod
+    def _arm_limits() -> np.ndarray:
+        from kitbench.control.kinematics import panda_model
+
+        model = panda_model()
+        return np.array([model.jnt_range[i] for i in range(7)])
 
     def _mount(self, spec: CameraSpec):
         if spec.mount is None:

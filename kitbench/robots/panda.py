@@ -65,16 +65,17 @@ def gripper_action_to_target(action: float) -> float:
     return FINGER_OPEN + (a + 1.0) * 0.5 * (FINGER_CLOSED - FINGER_OPEN)
 
 
-class Panda:
-    """A Panda in a scene: joint state, PD targets, the TCP frame and grasp detection."""
+_PARSED: dict = {}
 
-    def __init__(self, scene: sapien.Scene, spec: RobotSpec, base_pose: sapien.Pose, render: bool):
-        self.spec = spec
-        self.scene = scene
+
+def _parsed_panda(scene: sapien.Scene, finger_friction: float, render: bool):
+    """The URDF parsed once per process (parsing costs ~20 ms; building from the parse, a few ms)."""
+    key = (finger_friction, render)
+    if key not in _PARSED:
         loader = scene.create_urdf_loader()
         loader.fix_root_link = True
         builder = loader.load_file_as_articulation_builder(str(panda_urdf_path()), str(panda_srdf_path()))
-        finger_material = physx.PhysxMaterial(spec.finger_friction, spec.finger_friction, 0.0)
+        finger_material = physx.PhysxMaterial(finger_friction, finger_friction, 0.0)
         for link_builder in builder.link_builders:
             if not render:
                 link_builder.visual_records = []
@@ -83,6 +84,17 @@ class Panda:
                     record.material = finger_material
                     record.patch_radius = 0.1
                     record.min_patch_radius = 0.1
+        _PARSED[key] = builder
+    return _PARSED[key]
+
+
+class Panda:
+    """A Panda in a scene: joint state, PD targets, the TCP frame and grasp detection."""
+
+    def __init__(self, scene: sapien.Scene, spec: RobotSpec, base_pose: sapien.Pose, render: bool):
+        self.spec = spec
+        self.scene = scene
+        builder = _parsed_panda(scene, spec.finger_friction, render).set_scene(scene)
         self.articulation: physx.PhysxArticulation = builder.build(fix_root_link=True)
         self.articulation.name = spec.uid
         self.articulation.set_root_pose(base_pose)
