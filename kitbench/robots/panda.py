@@ -149,12 +149,11 @@ class Panda:
     # -- contact -------------------------------------------------------------------------------
     def is_grasping(self, body: sapien.Entity, min_impulse: float = 1e-4, max_angle_deg: float = 85.0) -> bool:
         """Both fingers press the body from opposite sides (contact impulse along each finger's closing axis)."""
-        finger_components = [f for f in self.fingers]
         target = body.find_component_by_type(physx.PhysxRigidBaseComponent)
         impulses = [np.zeros(3), np.zeros(3)]
         for contact in self.scene.get_contacts():
             b0, b1 = contact.bodies
-            for i, finger in enumerate(finger_components):
+            for i, finger in enumerate(self.fingers):
                 if b0 is finger and b1 is target:
                     sign = 1.0
                 elif b1 is finger and b0 is target:
