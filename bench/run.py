@@ -1,8 +1,8 @@
-"""Environment throughput benchmark: `make bench` (or `python bench/run.py`).
+"""Environment throughput benchmark: `make bench` (or `python bench/run.py [--task T]`).
 
-Prints, for LiftPegUpright-v1, env steps/s with state observations in two control modes, with rgb
-observations, reset/s, and the raw PhysX rate of the same scene (robot, table and peg stepped with no Python
-in between), all measured in one run so the ratios are meaningful on a shared machine.
+Prints, per task, env steps/s with state observations in two control modes, with rgb observations, reset/s,
+and the raw PhysX rate of the same scene (robot, table and task objects stepped with no Python in between), all
+measured in one run so the ratios are meaningful on a shared machine.
 """
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ import time
 import gymnasium as gym
 import numpy as np
 
-import kitbench  # noqa: F401
+import kitbench
 from kitbench.sim.scene import SimConfig
 
-TASK = "kitbench/LiftPegUpright-v1"
+REFERENCE = {"LiftPegUpright-v1": "289 (state, joint delta), 171 (ee delta pose), 19 (rgb)"}
 
 
-def env_steps_per_second(seconds: float, **kwargs) -> float:
-    env = gym.make(TASK, **kwargs).unwrapped
+def env_steps_per_second(task: str, seconds: float, **kwargs) -> float:
+    env = gym.make(f"kitbench/{task}", **kwargs).unwrapped
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (256, *env.action_space.shape)).astype(np.float32)
@@ -37,8 +37,8 @@ def env_steps_per_second(seconds: float, **kwargs) -> float:
     return rate
 
 
-def resets_per_second(seconds: float) -> float:
-    env = gym.make(TASK).unwrapped
+def resets_per_second(task: str, seconds: float) -> float:
+    env = gym.make(f"kitbench/{task}").unwrapped
     n, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
         env.reset(seed=n)
@@ -46,8 +46,8 @@ def resets_per_second(seconds: float) -> float:
     return n / (time.perf_counter() - start)
 
 
-def raw_physx_substeps_per_second(seconds: float) -> float:
-    env = gym.make(TASK).unwrapped
+def raw_physx_substeps_per_second(task: str, seconds: float) -> float:
+    env = gym.make(f"kitbench/{task}").unwrapped
     env.reset(seed=0)
     scene = env.scene
     n, start = 0, time.perf_counter()
@@ -58,27 +58,35 @@ def raw_physx_substeps_per_second(seconds: float) -> float:
     return n / (time.perf_counter() - start)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--seconds", type=float, default=5.0, help="measuring time per figure")
-    parser.add_argument("--no-rgb", action="store_true", help="skip the rendering figure (no Vulkan device)")
-    args = parser.parse_args()
+def bench_task(task: str, seconds: float, rgb: bool) -> None:
     substeps = SimConfig().substeps
-    raw = raw_physx_substeps_per_second(args.seconds)
+    raw = raw_physx_substeps_per_second(task, seconds)
     raw_control = raw / substeps
     rows = [
-        ("state, pd_joint_delta_pos", env_steps_per_second(args.seconds, obs_mode="state")),
-        ("state, pd_ee_delta_pose", env_steps_per_second(args.seconds, obs_mode="state", control_mode="pd_ee_delta_pose")),
+        ("state, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="state")),
+        ("state, pd_ee_delta_pose",
+         env_steps_per_second(task, seconds, obs_mode="state", control_mode="pd_ee_delta_pose")),
     ]
-    if not args.no_rgb:
-        rows.append(("rgb 128x128, pd_joint_delta_pos", env_steps_per_second(args.seconds, obs_mode="rgb")))
-    reset_rate = resets_per_second(args.seconds)
-    print(f"LiftPegUpright-v1  (sim {SimConfig().sim_freq} Hz, control {SimConfig().control_freq} Hz, {substeps} substeps)")
+    if rgb:
+        rows.append(("rgb 128x128, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="rgb")))
+    reset_rate = resets_per_second(task, seconds)
+    print(f"{task}  (sim {SimConfig().sim_freq} Hz, control {SimConfig().control_freq} Hz, {substeps} substeps)")
     print(f"  raw PhysX: {raw:,.0f} substeps/s = {raw_control:,.0f} control steps/s")
     for name, rate in rows:
         print(f"  {name:<34} {rate:8,.0f} steps/s   env/raw = {rate / raw_control:6.1%}")
     print(f"  {'reset(seed)':<34} {reset_rate:8,.0f} resets/s")
-    print("  reference framework on this machine kind: 289 (state, joint delta), 171 (ee delta pose), 19 (rgb)")
+    if task in REFERENCE:
+        print(f"  reference framework on this machine kind: {REFERENCE[task]}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--seconds", type=float, default=5.0, help="measuring time per figure")
+    parser.add_argument("--task", choices=sorted(kitbench.TASKS), action="append", help="default: every task")
+    parser.add_argument("--no-rgb", action="store_true", help="skip the rendering figures (no Vulkan device)")
+    args = parser.parse_args()
+    for task in args.task or list(kitbench.TASKS):
+        bench_task(task, args.seconds, rgb=not args.no_rgb)
 
 
 if __name__ == "__main__":

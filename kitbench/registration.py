@@ -22,6 +22,7 @@ TASKS: dict[str, TaskEntry] = {
     t.name: t
     for t in (
         TaskEntry("LiftPegUpright-v1", "kitbench.envs.lift_peg_upright:LiftPegUprightEnv", 50),
+        TaskEntry("AssemblingKits-v1", "kitbench.envs.assembling_kits:AssemblingKitsEnv", 200),
     )
 }
 
