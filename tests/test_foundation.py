@@ -84,3 +84,19 @@ def test_mujoco_and_sapien_agree_on_the_tcp_pose():
         mj = kin.tcp_pose(q)
         np.testing.assert_allclose(pose_to_matrix(sim.p, sim.q), mj, atol=2e-5)
     assert mujoco.__version__
+
+
+def test_panda_has_no_self_contacts_at_rest():
+    """Hand and wrist links overlap by design; a contact between them would fight the solver every step."""
+    scene = create_scene(SimConfig(), render=False)
+    robot = Panda(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=False)
+    rng = np.random.default_rng(1)
+    for q in [READY_ARM_QPOS, *rng.uniform(robot.arm_limits[:, 0], robot.arm_limits[:, 1], (5, 7))]:
+        robot.reset(q)
+        scene.step()
+        pairs = {(c.bodies[0].entity.name, c.bodies[1].entity.name) for c in scene.get_contacts()
+                 if min(p.separation for p in c.points) < 0}
+        assert not {p for p in pairs if p in {("panda_hand", "panda_link7"), ("panda_link7", "panda_hand")}}
+    robot.reset(READY_ARM_QPOS)
+    scene.step()
+    assert not [c for c in scene.get_contacts() if min(p.separation for p in c.points) < 0]

@@ -12,7 +12,8 @@ import numpy as np
 import sapien
 from sapien import physx
 
-from kitbench.robots.assets import panda_srdf_path, panda_urdf_path
+from kitbench.robots.assets import panda_urdf_path
+from kitbench.robots.visuals import lightweight_mesh
 from kitbench.sim.cameras import CameraSpec
 
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
@@ -65,7 +66,28 @@ def gripper_action_to_target(action: float) -> float:
     return FINGER_OPEN + (a + 1.0) * 0.5 * (FINGER_CLOSED - FINGER_OPEN)
 
 
+# Link pairs that must not collide. The example-robot-data SRDF lists these with reason "Adjacent" (or "Never"),
+# which SAPIEN's loader ignores (it honours only "Default"): left in, the hand sits 2.3 cm deep in link7 and the
+# solver fights that contact on every substep.
+SELF_COLLISION_IGNORED = (
+    ("panda_hand", "panda_link5"),
+    ("panda_hand", "panda_link6"),
+    ("panda_hand", "panda_link7"),
+    ("panda_link5", "panda_link7"),
+    ("panda_leftfinger", "panda_rightfinger"),
+    ("panda_leftfinger", "panda_link7"),
+    ("panda_rightfinger", "panda_link7"),
+)
+
 _PARSED: dict = {}
+
+
+def _ignore_self_collisions(builder) -> None:
+    """Give each ignored pair a shared bit in collision group 2 (SAPIEN skips pairs sharing such a bit)."""
+    by_name = {b.name: b for b in builder.link_builders}
+    for bit, (a, b) in enumerate(SELF_COLLISION_IGNORED):
+        for name in (a, b):
+            by_name[name].collision_groups[2] |= 1 << bit
 
 
 def _parsed_panda(scene: sapien.Scene, finger_friction: float, render: bool):
@@ -74,11 +96,15 @@ def _parsed_panda(scene: sapien.Scene, finger_friction: float, render: bool):
     if key not in _PARSED:
         loader = scene.create_urdf_loader()
         loader.fix_root_link = True
-        builder = loader.load_file_as_articulation_builder(str(panda_urdf_path()), str(panda_srdf_path()))
+        builder = loader.load_file_as_articulation_builder(str(panda_urdf_path()), srdf_file="")
+        _ignore_self_collisions(builder)
         finger_material = physx.PhysxMaterial(finger_friction, finger_friction, 0.0)
         for link_builder in builder.link_builders:
             if not render:
                 link_builder.visual_records = []
+            for record in link_builder.visual_records:
+                if record.type == "file":
+                    record.filename = lightweight_mesh(record.filename)
             if link_builder.name in FINGER_LINKS:
                 for record in link_builder.collision_records:
                     record.material = finger_material
