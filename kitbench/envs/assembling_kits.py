@@ -66,6 +66,7 @@ class AssemblingKitsEnv(TabletopEnv):
     max_episode_steps = 200
     max_dense_reward = MAX_DENSE_REWARD
     default_qpos_noise = 0.02
+    environment_state_keys = ("obj_pose", "goal_pos", "goal_rot", "shape_id", "symmetry")
 
     def __init__(self, *args, episode_file: str | Path | None = None, **kwargs):
         self.episodes = _load(str(episode_file) if episode_file is not None else None)
@@ -73,6 +74,10 @@ class AssemblingKitsEnv(TabletopEnv):
         self.episode_index = -1
         self._boards: OrderedDict = OrderedDict()  # episode index -> BoardGeometry, least recently used last
         super().__init__(*args, **kwargs)
+
+    def task_description(self) -> str:
+        name = self.shape.name.replace("_", " ")
+        return f"Pick up the loose {name} and insert it into its matching slot in the kit."
 
     # -- building ------------------------------------------------------------------------------
     def _sensor_cameras(self):

@@ -61,9 +61,13 @@ class LiftPegUprightEnv(TabletopEnv):
     max_episode_steps = 50
     max_dense_reward = 3.0
     default_qpos_noise = 0.02
+    environment_state_keys = ("peg_pose",)
 
     def _load_task(self, scene, render):
         self.peg = build_peg(scene, render)
+
+    def task_description(self) -> str:
+        return "Pick up the peg lying on the table and stand it upright on the table."
 
     def _sensor_cameras(self):
         return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 128, 128, math.pi / 2)]

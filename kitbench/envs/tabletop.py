@@ -32,6 +32,9 @@ class TabletopEnv(gym.Env):
     max_episode_steps: int = 50
     max_dense_reward: float = 1.0
     default_qpos_noise: float = 0.02
+    # Which of the task's state fields describe the world (objects, goals) rather than the robot: these form
+    # LeRobot's `observation.environment_state`.
+    environment_state_keys: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -91,6 +94,10 @@ class TabletopEnv(gym.Env):
         raise NotImplementedError
 
     def compute_dense_reward(self, info: dict) -> float:
+        raise NotImplementedError
+
+    def task_description(self) -> str:
+        """The natural-language instruction for the current episode."""
         raise NotImplementedError
 
     def _sensor_cameras(self) -> list[CameraSpec]:
@@ -201,6 +208,16 @@ class TabletopEnv(gym.Env):
             "agent": {"qpos": self.robot.qpos().astype(np.float32), "qvel": self.robot.qvel().astype(np.float32)},
             "extra": extra,
         }
+
+    def environment_state(self) -> np.ndarray:
+        """Object and goal state as one float32 vector (see `environment_state_keys`)."""
+        fields = self._task_state(self._last_info)
+        return np.concatenate([np.asarray(fields[k], dtype=np.float32).reshape(-1) for k in self.environment_state_keys])
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        """Cameras in image observations (empty unless obs_mode is rgb or rgbd)."""
+        return tuple(self._cameras)
 
     def _observation(self, info: dict):
         if self.obs_mode == "none":

@@ -1,0 +1,1 @@
+"""Recording demonstrations: LeRobot v3 datasets and per-episode MCAP logs."""

@@ -1,0 +1,99 @@
+"""Per-episode MCAP logs with Foxglove's well-known schemas, so Foxglove renders them as they are.
+
+Topics: `/tf` (FrameTransforms: every robot link, the TCP, task objects and goals, in the world frame),
+`/joint_states` (JointStates), `/camera/<name>` (CompressedImage, JPEG), and JSON channels `/action`,
+`/reward` (reward and success) and `/planner` (phase and TCP target). Log time is simulation time.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.JointState_pb2 import JointState
+from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
+from google.protobuf.timestamp_pb2 import Timestamp
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.schema import register_schema
+from PIL import Image
+
+WORLD = "world"
+JSON_TOPICS = {
+    "/action": {"type": "object", "properties": {"action": {"type": "array", "items": {"type": "number"}}}},
+    "/reward": {"type": "object", "properties": {"reward": {"type": "number"}, "success": {"type": "boolean"}}},
+    "/planner": {"type": "object", "properties": {"phase": {"type": "string"},
+                                                  "tcp_target": {"type": "array", "items": {"type": "number"}}}},
+}
+
+
+def _stamp(ns: int) -> Timestamp:
+    return Timestamp(seconds=ns // 1_000_000_000, nanos=ns % 1_000_000_000)
+
+
+class EpisodeMcap:
+    """Writes one episode; use as a context manager or call `close()`."""
+
+    def __init__(self, path: Path, cameras: tuple[str, ...] = (), jpeg_quality: int = 90):
+        self.path = Path(path)
+        self._file = open(self.path, "wb")
+        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="kitbench")
+        self._jpeg_quality = jpeg_quality
+        self._channels: dict[str, int] = {}
+        proto = {"/tf": FrameTransforms, "/joint_states": JointStates}
+        proto.update({f"/camera/{c}": CompressedImage for c in cameras})
+        for topic, cls in proto.items():
+            schema = register_schema(self._writer, cls)
+            self._channels[topic] = self._writer.register_channel(topic, "protobuf", schema)
+        for topic, schema_def in JSON_TOPICS.items():
+            schema = self._writer.register_schema(topic.strip("/"), "jsonschema", json.dumps(schema_def).encode())
+            self._channels[topic] = self._writer.register_channel(topic, "json", schema)
+        self.messages: dict[str, int] = dict.fromkeys(self._channels, 0)
+
+    def _write(self, topic: str, data: bytes, t_ns: int) -> None:
+        self._writer.add_message(self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data)
+        self.messages[topic] += 1
+
+    def log_step(self, t_ns: int, *, frames: dict[str, tuple[np.ndarray, np.ndarray]], joint_names, qpos, qvel,
+                 images: dict[str, np.ndarray], action, reward: float, success: bool, phase: str | None = None,
+                 tcp_target: np.ndarray | None = None) -> None:
+        """One control step. `frames` maps a child frame to its world (position, wxyz quaternion)."""
+        stamp = _stamp(t_ns)
+        tf = FrameTransforms()
+        for child, (p, q) in frames.items():
+            t = FrameTransform(timestamp=stamp, parent_frame_id=WORLD, child_frame_id=child)
+            t.translation.x, t.translation.y, t.translation.z = (float(v) for v in p)
+            t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z = (float(v) for v in q)
+            tf.transforms.append(t)
+        self._write("/tf", tf.SerializeToString(), t_ns)
+        js = JointStates(timestamp=stamp)
+        for name, position, velocity in zip(joint_names, qpos, qvel):
+            js.joints.append(JointState(name=name, position=float(position), velocity=float(velocity)))
+        self._write("/joint_states", js.SerializeToString(), t_ns)
+        for camera, rgb in images.items():
+            buf = io.BytesIO()
+            Image.fromarray(np.ascontiguousarray(rgb)).save(buf, format="JPEG", quality=self._jpeg_quality)
+            msg = CompressedImage(timestamp=stamp, frame_id=camera, data=buf.getvalue(), format="jpeg")
+            self._write(f"/camera/{camera}", msg.SerializeToString(), t_ns)
+        self._write("/action", json.dumps({"action": [float(a) for a in action]}).encode(), t_ns)
+        self._write("/reward", json.dumps({"reward": float(reward), "success": bool(success)}).encode(), t_ns)
+        if phase is not None:
+            target = [] if tcp_target is None else [float(v) for v in np.ravel(tcp_target)]
+            self._write("/planner", json.dumps({"phase": phase, "tcp_target": target}).encode(), t_ns)
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._writer.finish()
+            self._file.close()
+            self._file = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
