@@ -23,6 +23,32 @@ def _demo(args) -> int:
     return 0
 
 
+def _record(args) -> int:
+    from kitbench.recording.recorder import RecordConfig, load_recipe, record
+
+    flags = {
+        "task": args.task, "episodes": args.episodes, "out": args.out, "seed": args.seed, "obs_mode": args.obs_mode,
+        "control_mode": args.control_mode, "policy": args.policy, "only_success": args.only_success or None,
+        "workers": args.workers, "resume": args.resume or None, "overwrite": args.overwrite or None,
+        "mcap": args.mcap, "repo_id": args.repo_id, "commit_interval": args.commit_interval,
+    }
+    try:
+        if args.recipe:
+            config = load_recipe(Path(args.recipe), **flags)
+        else:
+            missing = [f"--{k}" for k in ("task", "episodes", "out") if flags[k] is None]
+            if missing:
+                raise ValueError(f"missing {', '.join(missing)} (or give a recipe file)")
+            config = RecordConfig(**{k: v for k, v in flags.items() if v is not None} | {"out": Path(args.out)})
+        summary = record(config)
+    except ValueError as exc:
+        print(f"kitbench record: error: {exc}", file=sys.stderr)
+        return 2
+    for line in summary.lines(config.out):
+        print(line)
+    return 130 if summary.interrupted else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="kitbench", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -32,6 +58,24 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="outputs/demo", help="output folder (default: outputs/demo)")
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=_demo)
+    rec = sub.add_parser("record", help="record demonstrations into a LeRobot dataset (+ MCAP logs)")
+    rec.add_argument("recipe", nargs="?", help="a recipe file (datasets/<name>.toml); flags override its values")
+    rec.add_argument("--task", help="LiftPegUpright-v1 or AssemblingKits-v1")
+    rec.add_argument("--episodes", type=int, help="episodes to store")
+    rec.add_argument("--out", help="dataset folder (the LeRobot root; MCAP logs go to <out>/mcap)")
+    rec.add_argument("--seed", type=int, help="first seed (default 0); episode k uses seed + k")
+    rec.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd")
+    rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
+    rec.add_argument("--policy", help="expert (default), random or zero")
+    rec.add_argument("--only-success", dest="only_success", action="store_true", help="store successful episodes only")
+    rec.add_argument("--workers", type=int, help="simulator processes (default 1); the dataset does not depend on it")
+    rec.add_argument("--resume", action="store_true", help="continue an interrupted recording in --out")
+    rec.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    rec.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=None, help="write MCAP logs (default on)")
+    rec.add_argument("--repo-id", dest="repo_id", help="dataset repo id (default kitbench/<task>)")
+    rec.add_argument("--commit-interval", dest="commit_interval", type=float,
+                     help="seconds between commits (default 30; 0 commits after every episode)")
+    rec.set_defaults(func=_record)
     return parser
 
 

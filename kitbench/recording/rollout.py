@@ -88,7 +88,7 @@ def run_episode(env, policy, seed: int, mcap_path: Path | None = None) -> Episod
             action = np.asarray(policy.act(obs), dtype=np.float32)
             obs, reward, terminated, truncated, info = env.step(action)
             frame["action"] = np.clip(action, u.action_space.low, u.action_space.high)
-            frame["action.ee_pose"] = commanded_tcp_pose(u)
+            frame["commanded_ee_pose"] = commanded_tcp_pose(u)
             frame["next.reward"] = np.array([reward], dtype=np.float32)
             frame["next.done"] = np.array([terminated or truncated], dtype=bool)
             frame["next.success"] = np.array([bool(info["success"])], dtype=bool)

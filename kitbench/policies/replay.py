@@ -1,0 +1,50 @@
+"""Replay the actions of a recorded LeRobot dataset episode (from the recorded seed, they reproduce it)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from kitbench.policies.convert import joint_target_to_action
+
+
+class ReplayPolicy:
+    """`replay:<dataset>[:episode]`: without an episode, each evaluated seed replays the episode recorded with
+    that seed; with one, that episode's actions are replayed whatever the seed."""
+
+    phase = None
+
+    def __init__(self, root: str, episode: int | None = None):
+        import pandas as pd
+
+        self.root = Path(root)
+        files = sorted((self.root / "data").rglob("*.parquet"))
+        if not files:
+            raise ValueError(f"no LeRobot dataset at {root} (no data/*/*.parquet)")
+        frames = pd.concat([pd.read_parquet(f, columns=["episode_index", "frame_index", "action", "episode_seed"])
+                            for f in files]).sort_values(["episode_index", "frame_index"])
+        self._actions = {int(e): np.stack(g["action"].to_numpy()).astype(np.float32)
+                         for e, g in frames.groupby("episode_index")}
+        self._by_seed = {int(g["episode_seed"].iloc[0][0]): int(e) for e, g in frames.groupby("episode_index")}
+        if episode is not None and episode not in self._actions:
+            raise ValueError(f"episode {episode} not in {root}; valid choices: 0..{len(self._actions) - 1}")
+        self.episode = episode
+        self.name = f"replay:{root}" + (f":{episode}" if episode is not None else "")
+
+    def reset(self, env, seed, obs, info):
+        episode = self.episode if self.episode is not None else self._by_seed.get(seed)
+        if episode is None:
+            raise ValueError(f"{self.root} has no episode recorded with seed {seed}; recorded seeds: "
+                             f"{sorted(self._by_seed)[:10]}...")
+        self._env = env
+        self._queue = list(self._actions[episode])
+        if self._queue and self._queue[0].shape != env.unwrapped.action_space.shape:
+            raise ValueError(f"recorded actions have shape {self._queue[0].shape}; the env's "
+                             f"{env.unwrapped.control_mode} expects {env.unwrapped.action_space.shape}")
+
+    def act(self, obs):
+        if self._queue:
+            return self._queue.pop(0)
+        # past the recorded episode (it ended on success or at the limit): hold still
+        return joint_target_to_action(self._env, self._env.unwrapped.controller.joint_target, -1.0)

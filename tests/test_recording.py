@@ -1,0 +1,212 @@
+"""`kitbench record`: LeRobot round trips, MCAP logs, determinism across workers, resume and bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import kitbench  # noqa: F401
+from kitbench.recording.recorder import RecordConfig, load_recipe, record
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+
+def _load(root: Path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset("kitbench/test", root=root)
+
+
+def _columns(root: Path) -> dict[str, np.ndarray]:
+    """Every non-video column of a dataset, read straight from its parquet files."""
+    import pandas as pd
+
+    frames = pd.concat([pd.read_parquet(p) for p in sorted((root / "data").rglob("*.parquet"))])
+    return {c: np.stack(frames[c].to_numpy()) for c in frames.columns}
+
+
+@pytest.fixture(scope="module")
+def state_dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rec") / "lpu_state"
+    summary = record(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, seed=0,
+                                  control_mode="pd_joint_delta_pos"), progress=False)
+    return out, summary
+
+
+def test_state_dataset_round_trips_through_lerobot(state_dataset):
+    out, summary = state_dataset
+    ds = _load(out)
+    assert ds.num_episodes == 3 and ds.fps == 20
+    assert len(ds) == summary.frames
+    item = ds[0]
+    assert item["observation.state"].shape == (8,)
+    assert item["observation.environment_state"].shape == (7,)
+    assert item["action"].shape == (8,)
+    assert item["commanded_ee_pose"].shape == (7,)
+    assert isinstance(item["task"], str) and "peg" in item["task"]
+    meta = [json.loads(line) for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
+    assert [m["seed"] for m in meta] == [0, 1, 2]
+    cols = _columns(out)
+    for m in meta:
+        rows = np.flatnonzero(cols["episode_index"].reshape(-1) == m["episode_index"])
+        assert len(rows) == m["length"]
+        assert np.all(cols["episode_seed"][rows] == m["seed"])
+        if m["success"]:
+            assert bool(cols["next.success"][rows[-1]][0]) and bool(cols["next.done"][rows[-1]][0])
+
+
+def test_expert_episodes_succeed_and_end_on_success(state_dataset):
+    out, _ = state_dataset
+    meta = [json.loads(line) for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
+    assert all(m["success"] for m in meta), meta
+    assert all(m["length"] == m["first_success"] + 1 for m in meta)
+
+
+def test_replaying_recorded_actions_reproduces_recorded_states(state_dataset):
+    out, _ = state_dataset
+    cols = _columns(out)
+    env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_joint_delta_pos")
+    from kitbench.recording.rollout import robot_state
+
+    for episode in range(3):
+        rows = np.flatnonzero(cols["episode_index"].reshape(-1) == episode)
+        seed = int(cols["episode_seed"][rows[0]][0])
+        env.reset(seed=seed)
+        u = env.unwrapped
+        for r in rows:
+            np.testing.assert_array_equal(robot_state(u), cols["observation.state"][r])
+            np.testing.assert_array_equal(u.environment_state(), cols["observation.environment_state"][r])
+            env.step(cols["action"][r])
+
+
+def test_mcap_logs_use_foxglove_schemas_and_match_frames(state_dataset):
+    from mcap.reader import make_reader
+
+    out, _ = state_dataset
+    meta = [json.loads(line) for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
+    for m in meta:
+        with open(out / "mcap" / f"episode_{m['episode_index']:06d}.mcap", "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            topics = {c.topic: (summary.schemas[c.schema_id].name, c.message_encoding) for c in summary.channels.values()}
+            counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
+            assert topics["/tf"] == ("foxglove.FrameTransforms", "protobuf")
+            assert topics["/joint_states"] == ("foxglove.JointStates", "protobuf")
+            assert {"/action", "/reward", "/planner"} <= set(topics)
+            assert all(n == m["length"] for n in counts.values()), counts
+            times = [msg.log_time for _, ch, msg in reader.iter_messages(topics=["/reward"])]
+            assert times == [int(round((i + 1) * 0.05e9)) for i in range(m["length"])]  # simulation time
+
+
+def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan):
+    out = tmp_path / "lpu_rgb"
+    record(RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, obs_mode="rgb", mcap=True), progress=False)
+    ds = _load(out)
+    frame = ds[5]["observation.images.base_camera"]
+    assert tuple(frame.shape) == (3, 128, 128) and 0.0 <= float(frame.min()) and float(frame.max()) <= 1.0
+    assert float(frame.std()) > 0.02
+    from mcap.reader import make_reader
+
+    with open(out / "mcap" / "episode_000000.mcap", "rb") as f:
+        s = make_reader(f).get_summary()
+        assert any(c.topic == "/camera/base_camera" for c in s.channels.values())
+
+
+def test_two_workers_give_the_same_dataset_as_one(tmp_path):
+    one, two = tmp_path / "w1", tmp_path / "w2"
+    record(RecordConfig(task="LiftPegUpright-v1", episodes=4, out=one, policy="random", mcap=False), progress=False)
+    record(RecordConfig(task="LiftPegUpright-v1", episodes=4, out=two, policy="random", mcap=False, workers=2),
+           progress=False)
+    a, b = _columns(one), _columns(two)
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_only_success_counts_but_does_not_store_failures(tmp_path):
+    out = tmp_path / "only"
+    summary = record(RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, only_success=True, mcap=True),
+                     progress=False)
+    assert summary.stored == 2 and summary.attempted == summary.successes + summary.failures_dropped
+    assert len(list((out / "mcap").glob("*.mcap"))) == 2
+
+
+# -- faults -----------------------------------------------------------------------------------------
+def test_existing_output_is_refused_and_left_alone(state_dataset):
+    out, _ = state_dataset
+    before = sorted(p.name for p in out.rglob("*"))
+    with pytest.raises(ValueError, match="exists; pass --resume to continue it or --overwrite to replace it"):
+        record(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out), progress=False)
+    assert sorted(p.name for p in out.rglob("*")) == before
+
+
+@pytest.mark.parametrize(
+    "kwargs,needle",
+    [
+        ({"task": "StackCube-v1"}, "unknown task 'StackCube-v1'; valid choices: LiftPegUpright-v1, AssemblingKits-v1"),
+        ({"control_mode": "pd_joint_vel"}, "unknown control_mode 'pd_joint_vel'; valid choices"),
+        ({"obs_mode": "pointcloud"}, "unknown obs_mode 'pointcloud' for recording; valid choices: state, rgb, rgbd"),
+        ({"policy": "oracle"}, "unknown policy 'oracle'; valid choices: expert, random, zero"),
+        ({"episodes": 0}, "episodes must be a positive integer, got 0"),
+    ],
+)
+def test_bad_input_writes_nothing(tmp_path, kwargs, needle):
+    out = tmp_path / "never"
+    config = {"task": "LiftPegUpright-v1", "episodes": 2, "out": out, **kwargs}
+    with pytest.raises(ValueError) as err:
+        record(RecordConfig(**config), progress=False)
+    assert needle in str(err.value)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_bad_recipes_name_the_problem(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[record]\ntask = "LiftPegUpright-v1"\nepisodes = 2\nout = "x"\ncolour = "red"\n')
+    with pytest.raises(ValueError, match=r"unknown key\(s\) colour"):
+        load_recipe(bad)
+    bad.write_text("task = [\n")
+    with pytest.raises(ValueError, match="invalid TOML"):
+        load_recipe(bad)
+    with pytest.raises(ValueError, match="does not exist"):
+        load_recipe(tmp_path / "missing.toml")
+
+
+def test_committed_recipes_parse():
+    root = Path(__file__).resolve().parents[1] / "datasets"
+    recipes = sorted(root.glob("*.toml"))
+    assert {load_recipe(r).task for r in recipes} >= {"LiftPegUpright-v1"}
+
+
+def test_kill_minus_nine_keeps_committed_episodes_and_resume_finishes(tmp_path):
+    """Kill a recording mid-run: the folder loads with stock lerobot, and --resume ends where an
+    uninterrupted run ends, frame for frame."""
+    out, reference = tmp_path / "killed", tmp_path / "reference"
+    cmd = [sys.executable, "-m", "kitbench.cli", "record", "--task", "LiftPegUpright-v1", "--episodes", "6",
+           "--policy", "random", "--no-mcap", "--commit-interval", "0"]
+    proc = subprocess.Popen([*cmd, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:
+        jsonl = out / "meta/kitbench_episodes.jsonl"
+        if jsonl.is_file() and len(jsonl.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    ds = _load(out)
+    kept = ds.num_episodes
+    assert 2 <= kept < 6
+    assert len(ds) == ds.meta.total_frames
+    subprocess.run([*cmd, "--out", str(out), "--resume"], check=True, capture_output=True, timeout=600)
+    subprocess.run([*cmd, "--out", str(reference)], check=True, capture_output=True, timeout=600)
+    a, b = _columns(out), _columns(reference)
+    for key in ("observation.state", "action", "episode_seed", "episode_index", "frame_index"):
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
