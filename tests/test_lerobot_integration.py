@@ -1,0 +1,94 @@
+"""kitbench as a LeRobot citizen: record -> lerobot-train (shipped config, offline) -> evaluate the checkpoint
+with kitbench and with lerobot-eval on the kitbench env plugin."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+
+import kitbench  # noqa: F401
+from kitbench.recording.recorder import RecordConfig, record
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    base = tmp_path_factory.mktemp("lerobot")
+    data = base / "lpu_state"
+    record(RecordConfig(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False), progress=False)
+    out = base / "train"
+    cmd = [str(BIN / "lerobot-train"), f"--config_path={ROOT / 'policies/act_lift_peg_upright_state.json'}",
+           f"--dataset.root={data}", f"--output_dir={out}", "--steps=4", "--batch_size=4", "--num_workers=0",
+           "--save_freq=4", "--env_eval_freq=0", "--log_freq=2"]
+    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=base)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    assert (ckpt / "model.safetensors").is_file()
+    assert json.loads((ckpt / "config.json").read_text())["pretrained_backbone_weights"] is None
+    return ckpt
+
+
+def test_env_plugin_is_discovered_by_lerobot():
+    code = ("from lerobot.utils.import_utils import register_third_party_plugins\n"
+            "register_third_party_plugins()\n"
+            "from lerobot.envs.configs import EnvConfig\n"
+            "cls = EnvConfig.get_choice_class('kitbench')\n"
+            "cfg = cls(task='AssemblingKits-v1', obs_type='pixels_state')\n"
+            "print(sorted(cfg.features_map.values()))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=OFFLINE, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "observation.images.hand_camera" in out.stdout and "observation.environment_state" in out.stdout
+
+
+def test_lerobot_env_speaks_lerobot_names(needs_vulkan):
+    import gym_kitbench  # noqa: F401
+
+    env = gym.make("gym_kitbench/LiftPegUpright-v1", obs_type="pixels_state")
+    obs, info = env.reset(seed=0)
+    assert set(obs) == {"agent_pos", "environment_state", "pixels"}
+    assert obs["pixels"]["base_camera"].shape == (128, 128, 3)
+    _, _, _, _, info = env.step(env.action_space.sample())
+    assert info["is_success"] is False
+    assert env.unwrapped.task_description.startswith("Pick up the peg")
+
+
+def test_kitbench_runs_the_trained_checkpoint(checkpoint):
+    from kitbench.policies.registry import make_policy
+    from kitbench.recording.rollout import run_episode
+
+    policy = make_policy(f"lerobot:{checkpoint}")
+    env = gym.make("kitbench/LiftPegUpright-v1")
+    record_ = run_episode(env, policy, seed=10_000)
+    assert record_.length == 50 or record_.success
+
+
+def test_mismatched_policy_lists_expected_and_provided(checkpoint):
+    from kitbench.policies.registry import make_policy
+    from kitbench.recording.rollout import run_episode
+
+    policy = make_policy(f"lerobot:{checkpoint}")
+    with pytest.raises(ValueError) as err:
+        run_episode(gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_ee_delta_pos"), policy, seed=0)
+    message = str(err.value)
+    assert "mismatched: action" in message and "action[8]" in message and "action[4] (pd_ee_delta_pos)" in message
+    with pytest.raises(ValueError, match=r"observation.environment_state\[7\].*observation.environment_state\[13\]"):
+        run_episode(gym.make("kitbench/AssemblingKits-v1"), policy, seed=0)
+
+
+def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan):
+    cmd = [str(BIN / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=kitbench",
+           "--env.task=LiftPegUpright-v1", "--eval.n_episodes=1", "--eval.batch_size=1",
+           "--eval.use_async_envs=false", f"--output_dir={tmp_path / 'eval'}"]
+    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
