@@ -31,7 +31,8 @@ def _columns(root: Path) -> dict[str, np.ndarray]:
     import pandas as pd
 
     frames = pd.concat([pd.read_parquet(p) for p in sorted((root / "data").rglob("*.parquet"))])
-    return {c: np.stack(frames[c].to_numpy()) for c in frames.columns}
+    columns = {c: np.stack(frames[c].to_numpy()) for c in frames.columns}
+    return {c: v.reshape(len(v), -1) if v.ndim == 1 else v for c, v in columns.items()}  # (1,) features: one column
 
 
 @pytest.fixture(scope="module")
