@@ -49,6 +49,50 @@ def _record(args) -> int:
     return 130 if summary.interrupted else 0
 
 
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in text).strip("_.")[-80:] or "policy"
+
+
+def eval_config_from_args(args):
+    """The evaluation the flags describe: a suite file cut to --episodes, or --episodes seeds from --seed."""
+    from kitbench.evaluation.runner import EvalConfig
+    from kitbench.evaluation.suite import DEFAULT_FIRST_SEED, adhoc_suite, load_suite
+
+    modes = {"obs_mode": args.obs_mode, "control_mode": args.control_mode, "reward_mode": args.reward_mode}
+    explicit = frozenset(k for k, v in modes.items() if v is not None)
+    if args.suite:
+        if args.seed is not None:
+            raise ValueError("--seed and --suite exclude each other (a suite fixes its seeds)")
+        suite = load_suite(args.suite)
+        if args.task is not None and args.task != suite.task:
+            raise ValueError(f"--task {args.task} does not match suite {args.suite}, which is for {suite.task}")
+        if args.episodes is not None:
+            suite = suite.first(args.episodes)
+        suite = suite.with_modes(**modes)
+    else:
+        missing = [f"--{k}" for k in ("task", "episodes") if getattr(args, k) is None]
+        if missing:
+            raise ValueError(f"missing {', '.join(missing)} (or give --suite eval/suites/<name>.toml)")
+        suite = adhoc_suite(args.task, args.episodes, DEFAULT_FIRST_SEED if args.seed is None else args.seed, **modes)
+    out = Path(args.out) if args.out else Path("outputs/eval") / suite.task / _slug(args.policy)
+    return EvalConfig(suite=suite, policy=args.policy, out=out, workers=args.workers, videos=args.videos,
+                      explicit=explicit)
+
+
+def _eval(args) -> int:
+    from kitbench.evaluation.runner import run_eval, summary_lines
+
+    try:
+        config = eval_config_from_args(args)
+        report = run_eval(config)
+    except ValueError as exc:
+        print(f"kitbench eval: error: {exc}", file=sys.stderr)
+        return 2
+    for line in summary_lines(report, config.out):
+        print(line)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="kitbench", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -76,6 +120,21 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--commit-interval", dest="commit_interval", type=float,
                      help="seconds between commits (default 30; 0 commits after every episode)")
     rec.set_defaults(func=_record)
+    ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")
+    ev.add_argument("--task", help="LiftPegUpright-v1 or AssemblingKits-v1 (implied by --suite)")
+    ev.add_argument("--policy", default="expert",
+                    help="expert (default), random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint>")
+    ev.add_argument("--episodes", type=int, help="episodes (with --suite: its first N seeds)")
+    ev.add_argument("--seed", type=int, help="first seed without a suite (default 1000000; episode k uses seed + k)")
+    ev.add_argument("--suite", help="a suite file (eval/suites/<name>.toml): task, seeds and modes")
+    ev.add_argument("--workers", type=int, default=1, help="simulator processes (default 1); results do not depend on it")
+    ev.add_argument("--videos", type=int, default=0, help="episodes to film, failures and successes both (default 0)")
+    ev.add_argument("--out", help="report folder (default outputs/eval/<task>/<policy>)")
+    ev.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd; image policies imply rgb")
+    ev.add_argument("--control-mode", dest="control_mode",
+                    help="default pd_joint_delta_pos, or the mode a lerobot/replay policy was trained in")
+    ev.add_argument("--reward-mode", dest="reward_mode", help="reward summed into returns (default dense)")
+    ev.set_defaults(func=_eval)
     return parser
 
 

@@ -61,14 +61,25 @@ def test_lerobot_env_speaks_lerobot_names(needs_vulkan):
     assert env.unwrapped.task_description.startswith("Pick up the peg")
 
 
-def test_kitbench_runs_the_trained_checkpoint(checkpoint):
-    from kitbench.policies.registry import make_policy
-    from kitbench.recording.rollout import run_episode
+def test_kitbench_eval_scores_the_trained_checkpoint(checkpoint, tmp_path):
+    out = tmp_path / "report"
+    result = subprocess.run([sys.executable, "-m", "kitbench.cli", "eval", "--policy", f"lerobot:{checkpoint}",
+                             "--suite", "eval/suites/lift_peg_upright_short.toml", "--episodes", "2", "--out", str(out)],
+                            capture_output=True, text=True, timeout=600, cwd=ROOT, env=OFFLINE)
+    assert result.returncode == 0, result.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["policy"] == f"lerobot:{checkpoint}" and report["episodes"] == 2
+    assert all(e["length"] == 50 or e["success"] for e in report["per_episode"])
+    assert (out / "report.md").is_file() and (out / "plots" / "success.png").is_file()
 
-    policy = make_policy(f"lerobot:{checkpoint}")
-    env = gym.make("kitbench/LiftPegUpright-v1")
-    record_ = run_episode(env, policy, seed=10_000)
-    assert record_.length == 50 or record_.success
+
+def test_kitbench_eval_refuses_another_control_mode_than_the_training_one(checkpoint):
+    from kitbench.evaluation.runner import EvalConfig, validate
+    from kitbench.evaluation.suite import adhoc_suite
+
+    suite = adhoc_suite("LiftPegUpright-v1", 1, control_mode="pd_joint_pos")
+    with pytest.raises(ValueError, match="trained on pd_joint_delta_pos actions.*--control-mode pd_joint_delta_pos"):
+        validate(EvalConfig(suite, f"lerobot:{checkpoint}", Path("unused"), explicit=frozenset({"control_mode"})))
 
 
 def test_mismatched_policy_lists_expected_and_provided(checkpoint):

@@ -7,6 +7,7 @@ both lists.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,24 @@ def env_features(env) -> dict[str, tuple[int, ...]]:
     return provided
 
 
+def trained_control_mode(checkpoint: Path) -> str | None:
+    """The control mode of the actions a checkpoint was trained on: from its kitbench dataset's recording
+    settings, else from the kitbench env it was evaluated on during training (None if neither is known)."""
+    path = checkpoint / "train_config.json"
+    if not path.is_file():
+        return None
+    train = json.loads(path.read_text())
+    root = (train.get("dataset") or {}).get("root")
+    if root:
+        from kitbench.recording.dataset import RECORDING_FILE
+
+        recording = Path(root) / RECORDING_FILE
+        if recording.is_file():
+            return json.loads(recording.read_text()).get("control_mode")
+    env = train.get("env") or {}
+    return env.get("control_mode") if env.get("type") == "kitbench" else None
+
+
 class LeRobotPolicy:
     name = "lerobot"
     phase = None
@@ -54,6 +73,16 @@ class LeRobotPolicy:
             cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
         self._torch = torch
         self.name = f"lerobot:{checkpoint}"
+        self.control_mode = trained_control_mode(path)
+
+    def requirements(self) -> dict:
+        """What the env must provide: camera images if the policy reads any, its training control mode."""
+        needs = {}
+        if any(k.startswith("observation.images.") for k in self.config.input_features):
+            needs["obs_mode"] = "rgb"
+        if self.control_mode is not None:
+            needs["control_mode"] = self.control_mode
+        return needs
 
     def check(self, env) -> None:
         provided = env_features(env)
@@ -75,6 +104,7 @@ class LeRobotPolicy:
         self.check(env)
         self._env = env
         self.policy.reset()
+        self._torch.manual_seed(seed)  # stochastic policies (Diffusion) sample the same noise for a seed
 
     def _batch(self, obs) -> dict:
         torch = self._torch

@@ -32,6 +32,17 @@ class ReplayPolicy:
         self.episode = episode
         self.name = f"replay:{root}" + (f":{episode}" if episode is not None else "")
 
+    def requirements(self) -> dict:
+        """The recorded actions only mean something in the control mode they were recorded in."""
+        import json
+
+        from kitbench.recording.dataset import RECORDING_FILE
+
+        path = self.root / RECORDING_FILE
+        if not path.is_file():
+            return {}
+        return {"control_mode": json.loads(path.read_text())["control_mode"]}
+
     def reset(self, env, seed, obs, info):
         episode = self.episode if self.episode is not None else self._by_seed.get(seed)
         if episode is None:

@@ -1,0 +1,71 @@
+"""One evaluation episode: the policy acts until the episode ends; only what a report needs is kept.
+
+Nothing is copied per step beyond a grasp check (and, for a video, the rendered frame), so scoring runs at the
+speed of the simulator and the policy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from kitbench.evaluation.outcomes import GraspWatch, criteria, failure_category
+
+
+@dataclass
+class EpisodeResult:
+    seed: int
+    success: bool
+    length: int  # control steps taken
+    steps_to_success: int | None  # control steps until the first successful state
+    episode_return: float
+    criteria: dict[str, bool]  # at the last step
+    failure: str | None  # category, None for a success
+    config: dict = field(default_factory=dict)  # kit, shape, episode index (AssemblingKits)
+    final: dict = field(default_factory=dict)  # the last step's task measurements (errors, tilt, ...)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _task_config(u) -> dict:
+    if getattr(u, "episode", None) is None:
+        return {}
+    return {"kit_id": int(u.episode.kit_id), "episode_index": int(u.episode_index),
+            "shape_id": int(u.shape.shape_id), "shape": u.shape.name}
+
+
+def _scalars(info: dict) -> dict:
+    out = {}
+    for k, v in info.items():
+        a = np.asarray(v)
+        if a.dtype.kind in "fiub":
+            out[k] = bool(a) if a.dtype.kind == "b" else (a.tolist() if a.ndim else float(a))
+    return out
+
+
+def evaluate_episode(env, policy, seed: int, task: str, frames: list | None = None) -> EpisodeResult:
+    """Run `policy` on `seed` to the end; if `frames` is a list, append a rendered frame per state to it."""
+    u = env.unwrapped
+    obs, info = env.reset(seed=seed)
+    policy.reset(env, seed, obs, info)
+    watch = GraspWatch()
+    if frames is not None:
+        frames.append(env.render())
+    total, steps, first = 0.0, 0, None
+    while True:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs))
+        steps += 1
+        total += float(reward)
+        watch.update(u)
+        if frames is not None:
+            frames.append(env.render())
+        if first is None and info["success"]:
+            first = steps
+        if terminated or truncated:
+            break
+    return EpisodeResult(
+        seed=seed, success=first is not None, length=steps, steps_to_success=first, episode_return=total,
+        criteria=criteria(task, info), failure=None if first is not None else failure_category(task, info, watch),
+        config=_task_config(u), final=_scalars(info))

@@ -1,0 +1,223 @@
+"""Run a policy over a suite's seeds (in one or several processes), film a few episodes and write the report.
+
+Episodes are scored without rendering unless the policy itself looks at images. Videos are made afterwards by
+replaying the chosen seeds in an env that renders: episodes are deterministic in their seed, so the filmed
+episode is the scored one (the report says so per video, having checked outcome, length and return).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import shutil
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from kitbench.evaluation.episode import EpisodeResult, evaluate_episode
+from kitbench.evaluation.suite import Suite
+
+REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    suite: Suite
+    policy: str
+    out: Path
+    workers: int = 1
+    videos: int = 0
+    # Suite settings the user chose explicitly; a policy's own needs may change the others (e.g. an
+    # image-based policy turns obs_mode "state" into "rgb") but must not contradict these.
+    explicit: frozenset[str] = frozenset()
+
+
+def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite:
+    """Apply what a policy needs (`policy.requirements()`: obs_mode / control_mode) to the suite, or explain the
+    conflict. An action means nothing in the wrong control mode, so that one is never silently changed."""
+    needs = policy.requirements() if hasattr(policy, "requirements") else {}
+    changes = {}
+    control = needs.get("control_mode")
+    if control is not None and control != suite.control_mode:
+        if "control_mode" in explicit or suite.source is not None:
+            where = "the command line" if "control_mode" in explicit else f"suite {suite.source}"
+            raise ValueError(f"policy {policy.name} was trained on {control} actions but {where} asks for "
+                             f"{suite.control_mode}; evaluate it with --control-mode {control}")
+        changes["control_mode"] = control
+    obs = needs.get("obs_mode")
+    if obs is not None and obs != suite.obs_mode:
+        if "obs_mode" in explicit and suite.obs_mode == "state":
+            raise ValueError(f"policy {policy.name} needs camera images (obs_mode {obs}); --obs-mode "
+                             f"{suite.obs_mode} has none")
+        if suite.obs_mode == "state":
+            changes["obs_mode"] = obs
+    return replace(suite, **changes) if changes else suite
+
+
+def _make_env(suite: Suite, render: bool = False):
+    from kitbench.registration import make_env
+
+    return make_env(suite.task, obs_mode=suite.obs_mode, control_mode=suite.control_mode,
+                    reward_mode=suite.reward_mode, render_mode="rgb_array" if render else None)
+
+
+# -- workers ---------------------------------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _worker_init(suite: Suite, policy_spec: str, single_thread: bool) -> None:
+    from kitbench.policies.registry import make_policy
+
+    _WORKER.update(suite=suite, env=_make_env(suite), policy=make_policy(policy_spec), video_env=None)
+    if single_thread and "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)  # N workers on N cores: no oversubscription
+
+
+def _worker_episode(seed: int) -> EpisodeResult:
+    return evaluate_episode(_WORKER["env"], _WORKER["policy"], seed, _WORKER["suite"].task)
+
+
+def _worker_video(job: tuple[int, str, int]) -> EpisodeResult:
+    from kitbench.evaluation.video import write_mp4
+
+    seed, path, fps = job
+    if _WORKER["video_env"] is None:
+        _WORKER["video_env"] = _make_env(_WORKER["suite"], render=True)
+    frames: list = []
+    result = evaluate_episode(_WORKER["video_env"], _WORKER["policy"], seed, _WORKER["suite"].task, frames)
+    write_mp4(Path(path), frames, fps)
+    return result
+
+
+def _close_worker() -> None:
+    for key in ("env", "video_env"):
+        if _WORKER.get(key) is not None:
+            _WORKER[key].close()
+    _WORKER.clear()
+
+
+class _Runner:
+    """Maps jobs over the worker functions, in order, in this process or in a pool of spawned processes."""
+
+    def __init__(self, suite: Suite, policy_spec: str, workers: int):
+        self.workers = workers
+        if workers == 1:
+            _worker_init(suite, policy_spec, single_thread=False)
+            self._pool = None
+        else:
+            self._pool = mp.get_context("spawn").Pool(workers, _worker_init, (suite, policy_spec, True))
+
+    def map(self, fn, jobs):
+        if self._pool is None:
+            return map(fn, jobs)
+        return self._pool.imap(fn, jobs)
+
+    def close(self):
+        if self._pool is None:
+            _close_worker()
+        else:
+            self._pool.terminate()
+            self._pool.join()
+
+
+# -- the evaluation --------------------------------------------------------------------------------
+def pick_video_seeds(results: list[EpisodeResult], count: int) -> list[EpisodeResult]:
+    """`count` episodes to film, failures and successes both: half of each (the first ones by seed order),
+    the other kind filling in when one runs short."""
+    if count <= 0:
+        return []
+    failures = [r for r in results if not r.success]
+    successes = [r for r in results if r.success]
+    n_fail = min(len(failures), max(count - len(successes), (count + 1) // 2))
+    chosen = {id(r) for r in failures[:n_fail] + successes[: count - n_fail]}
+    return [r for r in results if id(r) in chosen]
+
+
+def validate(config: EvalConfig):
+    """Every check that can fail before anything is written or run at length; returns (suite, policy)."""
+    from kitbench.policies.registry import make_policy
+
+    if not isinstance(config.workers, int) or config.workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {config.workers!r}")
+    if not isinstance(config.videos, int) or config.videos < 0:
+        raise ValueError(f"videos must be a non-negative integer, got {config.videos!r}")
+    policy = make_policy(config.policy)
+    suite = fit_suite_to_policy(config.suite, policy, config.explicit)
+    env = _make_env(suite)
+    try:
+        obs, info = env.reset(seed=suite.seeds[0])
+        policy.reset(env, suite.seeds[0], obs, info)  # policies check the env fits them here
+        timestep = env.unwrapped.control_timestep
+        fps = env.unwrapped.sim_config.control_freq
+    finally:
+        env.close()
+    return suite, policy, timestep, fps
+
+
+def run_eval(config: EvalConfig, progress: bool = True) -> dict:
+    from kitbench.evaluation.plots import write_plots
+    from kitbench.evaluation.report import build_report, markdown, write_json
+
+    suite, policy, timestep, fps = validate(config)
+    del policy
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in (REPORT_JSON, REPORT_MD):
+        (out / stale).unlink(missing_ok=True)
+    for stale in (PLOTS_DIR, VIDEOS_DIR):
+        shutil.rmtree(out / stale, ignore_errors=True)
+
+    start = time.monotonic()
+    runner = _Runner(suite, config.policy, min(config.workers, len(suite.seeds)))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(suite.seeds), desc=f"eval {suite.task}", unit="ep", dynamic_ncols=True)
+    results: list[EpisodeResult] = []
+    try:
+        for result in runner.map(_worker_episode, suite.seeds):
+            results.append(result)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
+        if bar is not None:
+            bar.close()
+        scored_seconds = time.monotonic() - start
+        chosen = pick_video_seeds(results, config.videos)
+        jobs = [(r.seed, str(out / VIDEOS_DIR / f"seed{r.seed}_{'success' if r.success else 'failure'}.mp4"), fps)
+                for r in chosen]
+        videos = []
+        for scored, replayed, (_, path, _) in zip(chosen, runner.map(_worker_video, jobs), jobs, strict=True):
+            same = (replayed.success, replayed.length, replayed.episode_return) == (
+                scored.success, scored.length, scored.episode_return)
+            videos.append({"seed": scored.seed, "success": scored.success, "failure": scored.failure,
+                           "path": str(Path(path).relative_to(out)), "matches_scored_episode": same})
+    finally:
+        if bar is not None:
+            bar.close()
+        runner.close()
+
+    report = build_report(suite, config.policy, results, timestep)
+    report["output"] = {"videos": videos}
+    report["output"]["plots"] = [str(p.relative_to(out)) for p in write_plots(report, out / PLOTS_DIR)]
+    seconds = time.monotonic() - start
+    report["timing"] = {"seconds": seconds, "scoring_seconds": scored_seconds, "workers": runner.workers,
+                        "episodes_per_minute": 60.0 * len(results) / max(scored_seconds, 1e-9)}
+    (out / REPORT_MD).write_text(markdown(report))
+    write_json(report, out / REPORT_JSON)  # last: a report.json means a complete evaluation
+    return report
+
+
+def summary_lines(report: dict, out: Path) -> list[str]:
+    s = report["success"]
+    lines = [f"{report['task']} · {report['policy']} · {report['episodes']} episodes: success {s['rate']:.1%} "
+             f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%})"]
+    for name, r in report["criteria"].items():
+        lines.append(f"  {name}: {r['rate']:.1%}")
+    failures = {k: v for k, v in report["failure_categories"].items() if v}
+    if failures:
+        lines.append("  failures: " + ", ".join(f"{k} {v}" for k, v in failures.items()))
+    lines.append(f"  report: {out / REPORT_MD} (+ {REPORT_JSON}, {len(report['output']['plots'])} plots, "
+                 f"{len(report['output']['videos'])} videos)")
+    return lines

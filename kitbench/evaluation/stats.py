@@ -1,0 +1,38 @@
+"""The statistics a report quotes: rates with Wilson intervals and summaries of distributions."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+Z95 = 1.959963984540054  # two-sided 95% normal quantile
+
+
+def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion: unlike the normal approximation it stays inside [0, 1]
+    and is honest at 0/N and N/N, which is where policies on small suites often land."""
+    if trials <= 0:
+        return 0.0, 1.0
+    p = successes / trials
+    z2 = z * z
+    centre = (p + z2 / (2 * trials)) / (1 + z2 / trials)
+    half = z * math.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials)) / (1 + z2 / trials)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rate(successes: int, trials: int) -> dict:
+    lo, hi = wilson_interval(successes, trials)
+    return {"count": int(successes), "episodes": int(trials), "rate": successes / trials if trials else 0.0,
+            "ci95": [lo, hi]}
+
+
+def describe(values) -> dict | None:
+    """Mean, spread and quantiles of a sample (None when empty)."""
+    v = np.asarray(list(values), dtype=np.float64)
+    if v.size == 0:
+        return None
+    q = np.quantile(v, [0.1, 0.25, 0.5, 0.75, 0.9])
+    return {"n": int(v.size), "mean": float(v.mean()), "std": float(v.std()), "min": float(v.min()),
+            "p10": float(q[0]), "p25": float(q[1]), "median": float(q[2]), "p75": float(q[3]),
+            "p90": float(q[4]), "max": float(v.max())}

@@ -1,0 +1,31 @@
+"""Episode videos as H.264 MP4 through PyAV (a LeRobot dependency), playable in any browser."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+
+def write_mp4(path: Path, frames: list[np.ndarray], fps: int, crf: int = 23) -> Path:
+    """Encode HxWx3 uint8 frames; the file appears only once complete."""
+    import av
+
+    if not frames:
+        raise ValueError(f"no frames to write to {path}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    height, width = frames[0].shape[:2]
+    with av.open(str(partial), mode="w", format="mp4") as container:
+        stream = container.add_stream("libx264", rate=Fraction(fps))
+        stream.width, stream.height = width - width % 2, height - height % 2
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"crf": str(crf), "preset": "veryfast"}
+        for rgb in frames:
+            rgb = np.ascontiguousarray(rgb[: stream.height, : stream.width, :3])
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+        container.mux(stream.encode())
+    partial.replace(path)
+    return path
