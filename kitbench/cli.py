@@ -14,12 +14,15 @@ def _doctor(args) -> int:
 
 
 def _demo(args) -> int:
-    from kitbench.demo import render_task_frames
+    from kitbench.demo import DemoConfig, run_demo
 
-    paths = render_task_frames(Path(args.out), seed=args.seed)
-    print("rendered:")
-    for p in paths:
-        print(f"  {p}")
+    config = DemoConfig(out=Path(args.out), episodes=args.episodes, eval_episodes=args.eval_episodes,
+                        workers=args.workers, tasks=tuple(args.task) if args.task else DemoConfig.tasks)
+    try:
+        run_demo(config)
+    except ValueError as exc:
+        print(f"kitbench demo: error: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -98,9 +101,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     doctor = sub.add_parser("doctor", help="check Python, packages, the Vulkan device and video decoding")
     doctor.set_defaults(func=_doctor)
-    demo = sub.add_parser("demo", help="render each task's scene to PNG files")
+    demo = sub.add_parser("demo", help="record a small dataset per task and evaluate the expert and random policies")
     demo.add_argument("--out", default="outputs/demo", help="output folder (default: outputs/demo)")
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--episodes", type=int, default=5, help="expert episodes recorded per task (default 5)")
+    demo.add_argument("--eval-episodes", dest="eval_episodes", type=int, default=10,
+                      help="episodes per policy evaluation (default 10, the short suites)")
+    demo.add_argument("--workers", type=int, default=1, help="simulator processes (default 1)")
+    demo.add_argument("--task", action="append", help="only this task (repeatable; default both)")
     demo.set_defaults(func=_demo)
     rec = sub.add_parser("record", help="record demonstrations into a LeRobot dataset (+ MCAP logs)")
     rec.add_argument("recipe", nargs="?", help="a recipe file (datasets/<name>.toml); flags override its values")

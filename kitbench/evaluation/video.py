@@ -11,7 +11,9 @@ import numpy as np
 def write_mp4(path: Path, frames: list[np.ndarray], fps: int, crf: int = 23) -> Path:
     """Encode HxWx3 uint8 frames; the file appears only once complete."""
     import av
+    import av.logging
 
+    av.logging.set_level(av.logging.ERROR)  # the encoder's statistics are noise on a terminal
     if not frames:
         raise ValueError(f"no frames to write to {path}")
     path = Path(path)
