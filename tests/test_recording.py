@@ -181,10 +181,15 @@ def test_bad_recipes_name_the_problem(tmp_path):
         load_recipe(tmp_path / "missing.toml")
 
 
-def test_committed_recipes_parse():
+def test_committed_recipes_are_valid_for_every_task(tmp_path):
+    from kitbench.recording.recorder import validate
+
     root = Path(__file__).resolve().parents[1] / "datasets"
-    recipes = sorted(root.glob("*.toml"))
-    assert {load_recipe(r).task for r in recipes} >= {"LiftPegUpright-v1"}
+    recipes = [load_recipe(r, out=str(tmp_path / r.stem)) for r in sorted(root.glob("*.toml"))]
+    assert {r.task for r in recipes} == set(kitbench.TASKS)
+    for recipe in recipes:
+        validate(recipe)  # task, modes and an expert for the task
+    assert not any(tmp_path.iterdir())
 
 
 def test_kill_minus_nine_keeps_committed_episodes_and_resume_finishes(tmp_path):

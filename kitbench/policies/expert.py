@@ -8,6 +8,7 @@ from kitbench.policies.convert import joint_target_to_action
 
 PLANNERS = {
     "LiftPegUprightEnv": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner",
+    "AssemblingKitsEnv": "kitbench.planning.assembling_kits:AssemblingKitsPlanner",
 }
 
 
