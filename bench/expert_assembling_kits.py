@@ -19,6 +19,7 @@ import numpy as np
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.kits import SHAPE_NAMES
 from kitbench.planning import AssemblingKitsPlanner
+from kitbench.policies.convert import joint_target_to_action
 
 TASK = "kitbench/AssemblingKits-v1"
 
@@ -52,7 +53,8 @@ def run_seeds(args: tuple[list[int], str]) -> list[Episode]:
         planner = AssemblingKitsPlanner(env)
         steps, terminated, truncated = 0, False, False
         while not (terminated or truncated):
-            obs, _, terminated, truncated, info = env.step(planner.act(obs))
+            target = planner.act(obs)  # pd_joint_pos targets, expressed in the env's mode
+            obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:7], float(target[7])))
             steps += 1
         success = bool(info["success"])
         episodes.append(Episode(seed, int(env.unwrapped.shape.shape_id), success, steps,
