@@ -1,8 +1,9 @@
 """Evaluation throughput of `kitbench eval`: `python bench/eval_throughput.py [--task T] [--episodes N] [--no-rgb]`.
 
 Scores the expert and the random policy on N seeds per cell, state vs rgb observations, 1 vs 2 workers, and
-prints episodes/min and control steps/s of the scoring itself (process start-up for 2 workers is reported
-separately), with the ratios between cells, all measured in one run.
+prints episodes/min and control steps/s of the scoring pass, with the ratios between cells, all measured in one
+run. Spawned workers start inside the scoring pass (imports, the MuJoCo model, render pipelines: seconds each),
+so on short suites 2 workers lose to 1; use enough episodes (hundreds) to measure scaling.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def main() -> None:
                 print(f"{policy:<7} {obs:<6} {workers:>7} {r['eps_min']:>13.1f} {r['steps_s']:>8.0f} "
                       f"{r['success']:>8.0%}", flush=True)
     for policy in ("expert", "random"):
-        print(f"  {policy}: start-up and report writing outside scoring: 1 worker "
+        print(f"  {policy}: videos, plots and report writing after scoring: 1 worker "
               f"{results[policy, 'state', 1]['overhead']:.1f} s, 2 workers {results[policy, 'state', 2]['overhead']:.1f} s")
     print("ratios (episodes/min):")
     for policy in ("expert", "random"):

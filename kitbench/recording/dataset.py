@@ -65,6 +65,16 @@ def _clone(src: Path, dst: Path) -> None:
             os.link(path, target)
 
 
+def _quiet_encoders() -> None:
+    """The video encoder's per-file statistics and the per-episode table-mapping bars are noise next to our
+    own progress bar; errors still show."""
+    import av.logging
+    import datasets
+
+    av.logging.set_level(av.logging.ERROR)
+    datasets.disable_progress_bars()
+
+
 class DatasetWriter:
     """Adds whole episodes to a LeRobot dataset under `root`, committing them in sessions."""
 
@@ -78,6 +88,7 @@ class DatasetWriter:
         self._session = None  # LeRobotDataset being written in the session folder
         self._pending: list[dict] = []  # kitbench metadata of episodes in the open session
         self._session_started = 0.0
+        _quiet_encoders()
 
     # -- state of the published dataset ------------------------------------------------------------
     @staticmethod
