@@ -104,31 +104,7 @@ def test_goal_fields_seat_the_shape(env):
     assert env.evaluate()["success"]
 
 
-# -- physics ---------------------------------------------------------------------------------------
-def _drop(env, shape_id, dyaw_deg, steps=20):
-    env.reset(seed=0, options={"episode_index": _episode_with_target(env, shape_id)})
-    top = env.episodes.board.top
-    env.obj.set_pose(sapien.Pose([env.goal_pos[0], env.goal_pos[1], top + 0.01],
-                                 yaw_quat(env.goal_rot + math.radians(dyaw_deg))))
-    for _ in range(steps):
-        _, _, _, _, info = env.step(HOLD)
-    return info
-
-
-@pytest.mark.parametrize("shape_id", range(20))
-def test_released_near_goal_yaw_the_shape_falls_into_its_slot(env, shape_id):
-    for dyaw in (1.0, -1.0):
-        info = _drop(env, shape_id, dyaw)
-        assert info["in_slot"] and info["success"], f"shape {shape_id} at {dyaw:+} deg: {info}"
-
-
-@pytest.mark.parametrize("shape_id", [i for i in range(20) if SYMMETRY[i] == 2 * math.pi])
-def test_asymmetric_shape_ten_degrees_off_does_not_enter(env, shape_id):
-    for dyaw in (10.0, -10.0):
-        info = _drop(env, shape_id, dyaw)
-        assert not info["in_slot"], f"shape {shape_id} entered at {dyaw:+} deg"
-
-
+# -- physics (drops into every default kit: tests/test_kit_physics.py) ------------------------------
 def test_seated_shape_keeps_success_for_200_steps(env):
     env.reset(seed=0, options={"episode_index": _episode_with_target(env, 10)})
     _place(env)

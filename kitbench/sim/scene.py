@@ -28,6 +28,10 @@ class SimConfig:
     contact_offset: float = 0.02
     rest_offset: float = 0.0
     bounce_threshold: float = 2.0
+    # PhysX's persistent contact manifold: the Panda holds shapes reliably only with it (without it the
+    # AssemblingKits expert dropped 118 of 500 shapes); its artefacts on small pieces are handled by the kit's
+    # own contact offset (envs/assembling_kits.py, docs/kit-physics.md).
+    enable_pcm: bool = True
     # 0: no body ever sleeps. PhysX skips sleeping bodies, which makes a resting scene step ~8x faster but lets
     # results depend on when a body fell asleep and woke; every body is simulated every substep by default.
     sleep_threshold: float = 0.0
@@ -49,7 +53,7 @@ def create_scene(config: SimConfig, render: bool) -> sapien.Scene:
     """A fresh scene with PhysX CPU and, only if asked, a render system."""
     scene_config = physx.PhysxSceneConfig()
     scene_config.bounce_threshold = config.bounce_threshold
-    scene_config.enable_pcm = True
+    scene_config.enable_pcm = config.enable_pcm
     scene_config.enable_tgs = True
     scene_config.enable_enhanced_determinism = True
     physx.set_scene_config(scene_config)
