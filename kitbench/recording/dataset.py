@@ -12,6 +12,7 @@ Per-episode facts LeRobot has no place for (seed, success, task configuration) g
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import shutil
@@ -65,14 +66,29 @@ def _clone(src: Path, dst: Path) -> None:
             os.link(path, target)
 
 
+AV_LOG_ERROR = 16  # libavutil/log.h
+
+
 def _quiet_encoders() -> None:
     """The video encoder's per-file statistics and the per-episode table-mapping bars are noise next to our
-    own progress bar; errors still show."""
+    own progress bar; errors still show.
+
+    PyAV's level alone does not hold: lerobot hands logging back to libav's own callback after every video
+    file, and that one prints at libav's level (x264 statistics, muxer notes: 240 lines in `make demo`). So
+    libav's level is set too, in every libavutil this process has loaded.
+    """
     import av.logging
     import datasets
 
     av.logging.set_level(av.logging.ERROR)
     datasets.disable_progress_bars()
+    try:
+        with open("/proc/self/maps") as maps:
+            libraries = {line.split()[-1] for line in maps if "/libavutil" in line}
+    except OSError:  # not Linux: PyAV's level is all we can set
+        return
+    for path in libraries:
+        ctypes.CDLL(path).av_log_set_level(AV_LOG_ERROR)
 
 
 class DatasetWriter:
