@@ -5,7 +5,7 @@ Importing the package registers the tasks with gymnasium (cheaply: the simulator
 
 from kitbench.registration import TASKS, register_tasks
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 register_tasks()
 

@@ -152,6 +152,57 @@ def test_existing_output_is_refused_and_left_alone(state_dataset):
     assert sorted(p.name for p in out.rglob("*")) == before
 
 
+def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_dataset, tmp_path):
+    """Episodes replay from their seed only under the same physics and assets, so a dataset never mixes versions."""
+    import shutil
+
+    from kitbench.recording.dataset import RECORDING_FILE
+
+    out = tmp_path / "older"
+    shutil.copytree(state_dataset[0], out)
+    saved = json.loads((out / RECORDING_FILE).read_text())
+    assert saved["kitbench_version"] == kitbench.__version__
+    (out / RECORDING_FILE).write_text(json.dumps({**saved, "kitbench_version": "0.0.1"}))
+    before = sorted(p.name for p in out.rglob("*"))
+    config = RecordConfig(task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_delta_pos",
+                          resume=True)
+    with pytest.raises(ValueError, match=rf"kitbench_version: recorded '0.0.1', asked '{kitbench.__version__}'"):
+        record(config, progress=False)
+    assert sorted(p.name for p in out.rglob("*")) == before
+
+
+def test_eval_replays_the_recorded_episodes(state_dataset, tmp_path):
+    """`kitbench eval --policy replay:<dataset>` on the recorded seeds scores what was recorded."""
+    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.suite import adhoc_suite
+
+    out, _ = state_dataset
+    report = run_eval(EvalConfig(suite=adhoc_suite("LiftPegUpright-v1", 3, seed=0), policy=f"replay:{out}",
+                                 out=tmp_path / "eval"), progress=False)
+    episodes = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
+    scored = {e["seed"]: (e["success"], e["length"]) for e in report["per_episode"]}
+    assert scored == {e["seed"]: (e["success"], e["length"]) for e in episodes}
+    assert report["success"]["rate"] == 1.0
+
+
+def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, tmp_path):
+    import shutil
+    import warnings
+
+    from kitbench.policies.replay import ReplayPolicy
+    from kitbench.recording.dataset import RECORDING_FILE
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert ReplayPolicy(str(state_dataset[0])).requirements() == {"control_mode": "pd_joint_delta_pos"}
+    out = tmp_path / "older"
+    shutil.copytree(state_dataset[0], out)
+    saved = json.loads((out / RECORDING_FILE).read_text())
+    (out / RECORDING_FILE).write_text(json.dumps({**saved, "kitbench_version": "0.0.1"}))
+    with pytest.warns(UserWarning, match="recorded with kitbench 0.0.1"):
+        ReplayPolicy(str(out))
+
+
 @pytest.mark.parametrize(
     "kwargs,needle",
     [

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -26,22 +28,33 @@ class ReplayPolicy:
                             for f in files]).sort_values(["episode_index", "frame_index"])
         self._actions = {int(e): np.stack(g["action"].to_numpy()).astype(np.float32)
                          for e, g in frames.groupby("episode_index")}
-        self._by_seed = {int(g["episode_seed"].iloc[0][0]): int(e) for e, g in frames.groupby("episode_index")}
+        # lerobot stores a (1,)-shaped feature as a plain column: a scalar per frame
+        self._by_seed = {int(np.ravel(g["episode_seed"].iloc[0])[0]): int(e) for e, g in frames.groupby("episode_index")}
         if episode is not None and episode not in self._actions:
             raise ValueError(f"episode {episode} not in {root}; valid choices: 0..{len(self._actions) - 1}")
         self.episode = episode
         self.name = f"replay:{root}" + (f":{episode}" if episode is not None else "")
+        self._recording = self._recording_settings()
 
-    def requirements(self) -> dict:
-        """The recorded actions only mean something in the control mode they were recorded in."""
-        import json
-
+    def _recording_settings(self) -> dict:
+        """kitbench's settings of the recording ({} for a dataset kitbench did not record)."""
+        import kitbench
         from kitbench.recording.dataset import RECORDING_FILE
 
         path = self.root / RECORDING_FILE
         if not path.is_file():
             return {}
-        return {"control_mode": json.loads(path.read_text())["control_mode"]}
+        settings = json.loads(path.read_text())
+        version = settings.get("kitbench_version")
+        if version != kitbench.__version__:
+            warnings.warn(f"{self.root} was recorded with kitbench {version or 'before 0.2.0'}, this is "
+                          f"{kitbench.__version__}: physics or assets may differ, so replays may not reproduce it",
+                          stacklevel=3)
+        return settings
+
+    def requirements(self) -> dict:
+        """The recorded actions only mean something in the control mode they were recorded in."""
+        return {"control_mode": self._recording["control_mode"]} if self._recording else {}
 
     def reset(self, env, seed, obs, info):
         episode = self.episode if self.episode is not None else self._by_seed.get(seed)

@@ -48,8 +48,12 @@ class RecordConfig:
         return self.repo_id or f"kitbench/{self.task}"
 
     def identity(self) -> dict:
-        """The settings a resumed recording must share with the original."""
-        return {k: getattr(self, k) for k in ("task", "seed", "obs_mode", "control_mode", "policy", "only_success")}
+        """The settings a resumed recording must share with the original, including the kitbench version:
+        episodes are reproducible from their seed only under the same physics and assets."""
+        import kitbench
+
+        settings = ("task", "seed", "obs_mode", "control_mode", "policy", "only_success")
+        return {**{k: getattr(self, k) for k in settings}, "kitbench_version": kitbench.__version__}
 
 
 RECIPE_KEYS = {f.name for f in dataclasses.fields(RecordConfig)}
