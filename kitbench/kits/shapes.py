@@ -12,8 +12,8 @@ up to ``SHAPE_HEIGHT``.  ``SYMMETRY[i]`` is the smallest positive yaw mapping
 shape ``i`` onto itself: ``2*pi`` means none, ``0`` means any rotation (disc and
 ring).  The disc and ring are regular polygons, so "any rotation" is exact only
 up to their polygon step (2*pi/48 for the disc and the ring's outer edge,
-2*pi/12 for the ring's inner edge); their rotation residual stays well below
-1% of the area at every angle.
+2*pi/12 for the ring's inner edge); their rotation residual stays below 1%
+(disc) and 2% (ring) of the area at every angle.
 """
 
 from __future__ import annotations
