@@ -65,6 +65,19 @@ def test_state_dataset_round_trips_through_lerobot(state_dataset):
             assert bool(cols["next.success"][rows[-1]][0]) and bool(cols["next.done"][rows[-1]][0])
 
 
+def test_assembling_kits_metadata_names_kit_and_shape_beside_the_dataset_episode(tmp_path):
+    out = tmp_path / "ak"
+    record(RecordConfig(task="AssemblingKits-v1", episodes=2, out=out, seed=0), progress=False)
+    meta = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
+    assert [m["episode_index"] for m in meta] == [0, 1] and [m["seed"] for m in meta] == [0, 1]
+    env = gym.make("kitbench/AssemblingKits-v1").unwrapped
+    for m in meta:
+        env.reset(seed=m["seed"])
+        assert (m["kit_episode"], m["kit_id"], m["shape_id"], m["shape"]) == (
+            env.episode_index, env.episode.kit_id, env.shape.shape_id, env.shape.name)
+    assert len(_load(out)) == sum(m["length"] for m in meta)
+
+
 def test_expert_episodes_succeed_and_end_on_success(state_dataset):
     out, _ = state_dataset
     meta = [json.loads(line) for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]

@@ -87,6 +87,11 @@ class AssemblingKitsEnv(TabletopEnv):
         name = self.shape.name.replace("_", " ")
         return f"Pick up the loose {name} and insert it into its matching slot in the kit."
 
+    def episode_config(self) -> dict:
+        """`kit_episode` indexes the episode file; `kit_id` is the file's own id for that kit."""
+        return {"kit_id": int(self.episode.kit_id), "kit_episode": int(self.episode_index),
+                "shape_id": int(self.shape.shape_id), "shape": self.shape.name}
+
     # -- building ------------------------------------------------------------------------------
     def _sensor_cameras(self):
         return [CameraSpec.looking_at("base_camera", [0.2, 0, 0.4], [0, 0, 0], 128, 128, math.pi / 2)]

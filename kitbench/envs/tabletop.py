@@ -100,6 +100,11 @@ class TabletopEnv(gym.Env):
         """The natural-language instruction for the current episode."""
         raise NotImplementedError
 
+    def episode_config(self) -> dict:
+        """What the current episode's seed chose beyond object poses (AssemblingKits: the kit and the shape), as
+        plain values for dataset metadata and evaluation reports."""
+        return {}
+
     def _sensor_cameras(self) -> list[CameraSpec]:
         return []
 

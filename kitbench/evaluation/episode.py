@@ -29,13 +29,6 @@ class EpisodeResult:
         return asdict(self)
 
 
-def _task_config(u) -> dict:
-    if getattr(u, "episode", None) is None:
-        return {}
-    return {"kit_id": int(u.episode.kit_id), "episode_index": int(u.episode_index),
-            "shape_id": int(u.shape.shape_id), "shape": u.shape.name}
-
-
 def _scalars(info: dict) -> dict:
     out = {}
     for k, v in info.items():
@@ -68,4 +61,4 @@ def evaluate_episode(env, policy, seed: int, task: str, frames: list | None = No
     return EpisodeResult(
         seed=seed, success=first is not None, length=steps, steps_to_success=first, episode_return=total,
         criteria=criteria(task, info), failure=None if first is not None else failure_category(task, info, watch),
-        config=_task_config(u), final=_scalars(info))
+        config=u.episode_config(), final=_scalars(info))

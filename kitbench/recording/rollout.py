@@ -46,11 +46,7 @@ def commanded_tcp_pose(u) -> np.ndarray:
 
 
 def task_config(u) -> dict:
-    config = {"task": type(u).__name__, "control_mode": u.control_mode, "obs_mode": u.obs_mode}
-    if getattr(u, "episode", None) is not None:
-        config.update(kit_id=int(u.episode.kit_id), episode_index=int(u.episode_index),
-                      shape_id=int(u.shape.shape_id))
-    return config
+    return {"task": type(u).__name__, "control_mode": u.control_mode, "obs_mode": u.obs_mode, **u.episode_config()}
 
 
 def _world_frames(u) -> dict[str, tuple[np.ndarray, np.ndarray]]:
