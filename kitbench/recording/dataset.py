@@ -13,10 +13,12 @@ Per-episode facts LeRobot has no place for (seed, success, task configuration) g
 from __future__ import annotations
 
 import ctypes
+import importlib
 import json
 import os
 import shutil
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +84,12 @@ def _quiet_encoders() -> None:
 
     av.logging.set_level(av.logging.ERROR)
     datasets.disable_progress_bars()
+    # lerobot wraps some table operations in a context that re-enables the bars on exit, after which every
+    # episode but the first printed a "Map" bar. Pinning them off is what HF_DATASETS_DISABLE_PROGRESS_BARS=1
+    # does when set before `datasets` is imported; enabling then only warns, which is silenced here. (The
+    # module is looked up by name: `datasets.utils.tqdm` the attribute is its tqdm class.)
+    importlib.import_module("datasets.utils.tqdm").HF_DATASETS_DISABLE_PROGRESS_BARS = True
+    warnings.filterwarnings("ignore", message="Cannot enable progress bars", category=UserWarning)
     try:
         with open("/proc/self/maps") as maps:
             libraries = {line.split()[-1] for line in maps if "/libavutil" in line}
