@@ -75,8 +75,8 @@ def test_assembling_kits_metadata_names_kit_and_shape_beside_the_dataset_episode
     env = gym.make("kitbench/AssemblingKits-v1").unwrapped
     for m in meta:
         env.reset(seed=m["seed"])
-        assert (m["kit_episode"], m["kit_id"], m["shape_id"], m["shape"]) == (
-            env.episode_index, env.episode.kit_id, env.shape.shape_id, env.shape.name)
+        assert (m["kit_episode"], m["kit_id"], m["shape_id"], m["shape"], m["task"]) == (
+            env.episode_index, env.episode.kit_id, env.shape.shape_id, env.shape.name, env.task_description())
     assert len(_load(out)) == sum(m["length"] for m in meta)
 
 

@@ -46,7 +46,7 @@ def commanded_tcp_pose(u) -> np.ndarray:
 
 
 def task_config(u) -> dict:
-    return {"task": type(u).__name__, "control_mode": u.control_mode, "obs_mode": u.obs_mode, **u.episode_config()}
+    return {"control_mode": u.control_mode, "obs_mode": u.obs_mode, **u.episode_config()}
 
 
 def _world_frames(u) -> dict[str, tuple[np.ndarray, np.ndarray]]:
