@@ -200,6 +200,17 @@ def test_eval_replays_the_recorded_episodes(state_dataset, tmp_path):
     assert report["success"]["rate"] == 1.0
 
 
+def test_eval_refuses_to_replay_a_recording_on_another_task(state_dataset, tmp_path):
+    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.suite import adhoc_suite
+
+    config = EvalConfig(suite=adhoc_suite("AssemblingKits-v1", 2, seed=0), policy=f"replay:{state_dataset[0]}",
+                        out=tmp_path / "eval")
+    with pytest.raises(ValueError, match="was recorded on LiftPegUpright-v1 .* evaluate it with --task LiftPegUpright-v1"):
+        run_eval(config, progress=False)
+    assert not (tmp_path / "eval").exists()
+
+
 def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, tmp_path):
     import shutil
     import warnings
@@ -209,7 +220,8 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert ReplayPolicy(str(state_dataset[0])).requirements() == {"control_mode": "pd_joint_delta_pos"}
+        assert ReplayPolicy(str(state_dataset[0])).requirements() == {"task": "LiftPegUpright-v1",
+                                                                      "control_mode": "pd_joint_delta_pos"}
     out = tmp_path / "older"
     shutil.copytree(state_dataset[0], out)
     saved = json.loads((out / RECORDING_FILE).read_text())

@@ -33,9 +33,13 @@ class EvalConfig:
 
 
 def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite:
-    """Apply what a policy needs (`policy.requirements()`: obs_mode / control_mode) to the suite, or explain the
+    """Apply what a policy needs (`policy.requirements()`: task / obs_mode / control_mode) to the suite, or explain the
     conflict. An action means nothing in the wrong control mode, so that one is never silently changed."""
     needs = policy.requirements() if hasattr(policy, "requirements") else {}
+    task = needs.get("task")
+    if task is not None and task != suite.task:
+        raise ValueError(f"policy {policy.name} was recorded on {task} but this evaluation runs {suite.task}; "
+                         f"evaluate it with --task {task}")
     changes = {}
     control = needs.get("control_mode")
     if control is not None and control != suite.control_mode:

@@ -53,14 +53,16 @@ class ReplayPolicy:
         return settings
 
     def requirements(self) -> dict:
-        """The recorded actions only mean something in the control mode they were recorded in."""
-        return {"control_mode": self._recording["control_mode"]} if self._recording else {}
+        """The recorded actions only mean something in the task and control mode they were recorded in."""
+        return {k: self._recording[k] for k in ("task", "control_mode")} if self._recording else {}
 
     def reset(self, env, seed, obs, info):
         episode = self.episode if self.episode is not None else self._by_seed.get(seed)
         if episode is None:
-            raise ValueError(f"{self.root} has no episode recorded with seed {seed}; recorded seeds: "
-                             f"{sorted(self._by_seed)[:10]}...")
+            seeds = sorted(self._by_seed)
+            raise ValueError(f"{self.root} has no episode recorded with seed {seed}; recorded seeds: {seeds[:10]}"
+                             f"{'...' if len(seeds) > 10 else ''} (evaluate them with --seed {seeds[0]} "
+                             f"--episodes {len(seeds)})")
         self._env = env
         self._queue = list(self._actions[episode])
         if self._queue and self._queue[0].shape != env.unwrapped.action_space.shape:
