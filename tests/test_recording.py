@@ -211,6 +211,16 @@ def test_eval_refuses_to_replay_a_recording_on_another_task(state_dataset, tmp_p
     assert not (tmp_path / "eval").exists()
 
 
+def test_replay_of_an_unrecorded_seed_names_the_recorded_ones(state_dataset):
+    from kitbench.policies.replay import ReplayPolicy
+
+    env = gym.make("kitbench/LiftPegUpright-v1")
+    obs, info = env.reset(seed=7)
+    with pytest.raises(ValueError, match=r"no episode recorded with seed 7; recorded seeds: \[0, 1, 2\] "
+                                         r"\(evaluate them with --seed 0 --episodes 3\)"):
+        ReplayPolicy(str(state_dataset[0])).reset(env, 7, obs, info)
+
+
 def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, tmp_path):
     import shutil
     import warnings

@@ -60,9 +60,10 @@ class ReplayPolicy:
         episode = self.episode if self.episode is not None else self._by_seed.get(seed)
         if episode is None:
             seeds = sorted(self._by_seed)
+            hint = (f" (evaluate them with --seed {seeds[0]} --episodes {len(seeds)})"
+                    if seeds == list(range(seeds[0], seeds[0] + len(seeds))) else "")
             raise ValueError(f"{self.root} has no episode recorded with seed {seed}; recorded seeds: {seeds[:10]}"
-                             f"{'...' if len(seeds) > 10 else ''} (evaluate them with --seed {seeds[0]} "
-                             f"--episodes {len(seeds)})")
+                             f"{'...' if len(seeds) > 10 else ''}{hint}")
         self._env = env
         self._queue = list(self._actions[episode])
         if self._queue and self._queue[0].shape != env.unwrapped.action_space.shape:
