@@ -35,8 +35,8 @@ def env():
     e.close()
 
 
-def _kits_by_target(shape_id: int) -> list[int]:
-    return [i for i, e in enumerate(load_episodes(None)) if e.target_shape_id == shape_id]
+def _kits_by_target(env, shape_id: int) -> list[int]:
+    return [i for i, e in enumerate(env.episodes) if e.target_shape_id == shape_id]
 
 
 def _hull_error(piece: np.ndarray, material: physx.PhysxMaterial) -> float:
@@ -77,7 +77,7 @@ def _drop(env, episode_index: int, dyaw_deg: float, hold_yaw: bool = False) -> d
 
 @pytest.mark.parametrize("shape_id", range(NUM_SHAPES))
 def test_released_near_goal_yaw_the_shape_falls_into_its_slot_in_every_kit(env, shape_id):
-    kits = _kits_by_target(shape_id)
+    kits = _kits_by_target(env, shape_id)
     assert kits, f"no default episode has shape {shape_id} as its target"
     missed = [(i, dyaw) for i in kits for dyaw in (1.0, -1.0) if not _drop(env, i, dyaw)["success"]]
     assert not missed, f"shape {shape_id} stayed out of its slot (kit, yaw offset): {missed}"
@@ -87,7 +87,7 @@ def test_released_near_goal_yaw_the_shape_falls_into_its_slot_in_every_kit(env, 
 def test_held_ten_degrees_off_an_asymmetric_shape_cannot_enter_in_any_kit(env, shape_id):
     """The 4-degree rule is meaningful only if the pocket walls stop a wrongly turned shape. Its yaw is held:
     a free shape landing on the rim can turn itself into the pocket as it tips in (see docs/kit-physics.md)."""
-    entered = [(i, dyaw) for i in _kits_by_target(shape_id) for dyaw in (10.0, -10.0)
+    entered = [(i, dyaw) for i in _kits_by_target(env, shape_id) for dyaw in (10.0, -10.0)
                if _drop(env, i, dyaw, hold_yaw=True)["in_slot"]]
     assert not entered, f"shape {shape_id} entered at 10 degrees off (kit, yaw offset): {entered}"
 
@@ -95,5 +95,5 @@ def test_held_ten_degrees_off_an_asymmetric_shape_cannot_enter_in_any_kit(env, s
 def test_held_one_degree_off_a_shape_still_enters(env):
     """The hold itself does not keep shapes out: the same drop one degree off goes in."""
     for shape_id in (0, 14, 16):
-        kit = _kits_by_target(shape_id)[0]
+        kit = _kits_by_target(env, shape_id)[0]
         assert _drop(env, kit, 1.0, hold_yaw=True)["in_slot"], shape_id

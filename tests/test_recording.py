@@ -167,17 +167,22 @@ def test_existing_output_is_refused_and_left_alone(state_dataset):
     assert sorted(p.name for p in out.rglob("*")) == before
 
 
-def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_dataset, tmp_path):
-    """Episodes replay from their seed only under the same physics and assets, so a dataset never mixes versions."""
+def _as_recorded_by_an_older_version(dataset: Path, out: Path) -> Path:
+    """A copy of `dataset` whose recording settings say kitbench 0.0.1 made it."""
     import shutil
 
     from kitbench.recording.dataset import RECORDING_FILE
 
-    out = tmp_path / "older"
-    shutil.copytree(state_dataset[0], out)
+    shutil.copytree(dataset, out)
     saved = json.loads((out / RECORDING_FILE).read_text())
     assert saved["kitbench_version"] == kitbench.__version__
     (out / RECORDING_FILE).write_text(json.dumps({**saved, "kitbench_version": "0.0.1"}))
+    return out
+
+
+def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_dataset, tmp_path):
+    """Episodes replay from their seed only under the same physics and assets, so a dataset never mixes versions."""
+    out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     before = sorted(p.name for p in out.rglob("*"))
     config = RecordConfig(task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_delta_pos",
                           resume=True)
@@ -222,20 +227,15 @@ def test_replay_of_an_unrecorded_seed_names_the_recorded_ones(state_dataset):
 
 
 def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, tmp_path):
-    import shutil
     import warnings
 
     from kitbench.policies.replay import ReplayPolicy
-    from kitbench.recording.dataset import RECORDING_FILE
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert ReplayPolicy(str(state_dataset[0])).requirements() == {"task": "LiftPegUpright-v1",
                                                                       "control_mode": "pd_joint_delta_pos"}
-    out = tmp_path / "older"
-    shutil.copytree(state_dataset[0], out)
-    saved = json.loads((out / RECORDING_FILE).read_text())
-    (out / RECORDING_FILE).write_text(json.dumps({**saved, "kitbench_version": "0.0.1"}))
+    out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     with pytest.warns(UserWarning, match="recorded with kitbench 0.0.1"):
         ReplayPolicy(str(out))
 
