@@ -6,8 +6,10 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.kitbench-synced
 PYTEST_ARGS ?=
+# What ruff formats and lints (it picks the Python files out of these folders).
+LINT_PATHS := kitbench tests bench integrations scripts
 
-.PHONY: demo test bench doctor bootstrap system clean
+.PHONY: demo test lint fmt bench doctor bootstrap system clean
 
 system:
 	@bash scripts/bootstrap-system.sh
@@ -24,8 +26,22 @@ bootstrap: system $(STAMP)
 demo: bootstrap
 	@$(PY) -m kitbench.cli demo
 
-test: bootstrap
-	@$(PY) -m pytest $(PYTEST_ARGS)
+# $(call step,NAME,COMMAND): a banner line, then the command; a failure ends with a line naming the step again.
+step = echo "kitbench: $(1)" && $(2) || { rc=$$?; echo "kitbench: $(1) failed" >&2; exit $$rc; }
+
+# Checks stop at the first failure; `make fmt` fixes what the formatter reports.
+lint: bootstrap
+	@$(call step,ruff format --check,$(VENV)/bin/ruff format --check $(LINT_PATHS))
+	@$(call step,ruff check,$(VENV)/bin/ruff check $(LINT_PATHS))
+	@$(call step,mypy kitbench,$(VENV)/bin/mypy kitbench)
+
+test: lint
+	@$(call step,pytest,$(PY) -m pytest $(PYTEST_ARGS))
+
+# Applies the formatter and ruff's safe fixes; what remains is reported by `make lint`.
+fmt: bootstrap
+	@$(VENV)/bin/ruff format $(LINT_PATHS)
+	@$(VENV)/bin/ruff check --fix $(LINT_PATHS)
 
 bench: bootstrap
 	@$(PY) bench/run.py
@@ -34,4 +50,4 @@ doctor: bootstrap
 	@$(PY) -m kitbench.cli doctor
 
 clean:
-	rm -rf outputs .pytest_cache
+	rm -rf outputs .pytest_cache .ruff_cache .mypy_cache

@@ -17,12 +17,17 @@ from kitbench.evaluation.suite import adhoc_suite
 
 def cell(task: str, policy: str, episodes: int, obs_mode: str, workers: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as out:
-        report = run_eval(EvalConfig(adhoc_suite(task, episodes, obs_mode=obs_mode), policy, out, workers=workers),
-                          progress=False)
+        report = run_eval(
+            EvalConfig(adhoc_suite(task, episodes, obs_mode=obs_mode), policy, out, workers=workers), progress=False
+        )
     timing = report["timing"]
     steps = sum(e["length"] for e in report["per_episode"])
-    return {"eps_min": timing["episodes_per_minute"], "steps_s": steps / timing["scoring_seconds"],
-            "success": report["success"]["rate"], "overhead": timing["seconds"] - timing["scoring_seconds"]}
+    return {
+        "eps_min": timing["episodes_per_minute"],
+        "steps_s": steps / timing["scoring_seconds"],
+        "success": report["success"]["rate"],
+        "overhead": timing["seconds"] - timing["scoring_seconds"],
+    }
 
 
 def main() -> None:
@@ -39,17 +44,25 @@ def main() -> None:
         for obs in obs_modes:
             for workers in (1, 2):
                 r = results[policy, obs, workers] = cell(args.task, policy, args.episodes, obs, workers)
-                print(f"{policy:<7} {obs:<6} {workers:>7} {r['eps_min']:>13.1f} {r['steps_s']:>8.0f} "
-                      f"{r['success']:>8.0%}", flush=True)
+                print(
+                    f"{policy:<7} {obs:<6} {workers:>7} {r['eps_min']:>13.1f} {r['steps_s']:>8.0f} "
+                    f"{r['success']:>8.0%}",
+                    flush=True,
+                )
     for policy in ("expert", "random"):
-        print(f"  {policy}: videos, plots and report writing after scoring: 1 worker "
-              f"{results[policy, 'state', 1]['overhead']:.1f} s, 2 workers {results[policy, 'state', 2]['overhead']:.1f} s")
+        print(
+            f"  {policy}: videos, plots and report writing after scoring: 1 worker "
+            f"{results[policy, 'state', 1]['overhead']:.1f} s, "
+            f"2 workers {results[policy, 'state', 2]['overhead']:.1f} s"
+        )
     print("ratios (episodes/min):")
     for policy in ("expert", "random"):
         for obs in obs_modes:
-            print(f"  {policy} {obs}: 2 workers/1 {results[policy, obs, 2]['eps_min'] / results[policy, obs, 1]['eps_min']:.2f}")
+            ratio = results[policy, obs, 2]["eps_min"] / results[policy, obs, 1]["eps_min"]
+            print(f"  {policy} {obs}: 2 workers/1 {ratio:.2f}")
         if "rgb" in obs_modes:
-            print(f"  {policy}: rgb/state {results[policy, 'rgb', 1]['eps_min'] / results[policy, 'state', 1]['eps_min']:.2f}")
+            ratio = results[policy, "rgb", 1]["eps_min"] / results[policy, "state", 1]["eps_min"]
+            print(f"  {policy}: rgb/state {ratio:.2f}")
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import numpy as np
 
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.kits import SHAPE_NAMES
-from kitbench.planning import AssemblingKitsPlanner
+from kitbench.planning.assembling_kits import AssemblingKitsPlanner
 from kitbench.policies.convert import joint_target_to_action
 
 TASK = "kitbench/AssemblingKits-v1"
@@ -57,8 +57,15 @@ def run_seeds(args: tuple[list[int], str]) -> list[Episode]:
             obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:7], float(target[7])))
             steps += 1
         success = bool(info["success"])
-        episodes.append(Episode(seed, int(env.unwrapped.shape.shape_id), success, steps,
-                                "success" if success else failure_category(planner, info)))
+        episodes.append(
+            Episode(
+                seed,
+                int(env.unwrapped.shape.shape_id),
+                success,
+                steps,
+                "success" if success else failure_category(planner, info),
+            )
+        )
     env.close()
     return episodes
 
@@ -79,8 +86,10 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
     lines = [f"AssemblingKits-v1 expert ({control_mode}): {len(wins)}/{n} succeeded ({100.0 * len(wins) / n:.1f}%)"]
     if wins:
         steps = np.array([e.steps for e in wins])
-        lines.append(f"steps over successes: median {np.median(steps):.0f}, p90 {np.percentile(steps, 90):.0f}, "
-                     f"max {steps.max()} (limit 200)")
+        lines.append(
+            f"steps over successes: median {np.median(steps):.0f}, p90 {np.percentile(steps, 90):.0f}, "
+            f"max {steps.max()} (limit 200)"
+        )
     lines.append("shape                 episodes  success  median steps")
     for shape_id in range(len(SHAPE_NAMES)):
         rows = [e for e in episodes if e.shape_id == shape_id]
@@ -88,7 +97,8 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
             continue
         ok = [e.steps for e in rows if e.success]
         median = f"{np.median(ok):.0f}" if ok else "-"
-        lines.append(f"{shape_id:2d} {SHAPE_NAMES[shape_id]:<18} {len(rows):8d}  {100.0 * len(ok) / len(rows):6.1f}%  {median:>12}")
+        rate = 100.0 * len(ok) / len(rows)
+        lines.append(f"{shape_id:2d} {SHAPE_NAMES[shape_id]:<18} {len(rows):8d}  {rate:6.1f}%  {median:>12}")
     failures = collections.Counter(e.category for e in episodes if not e.success)
     if failures:
         lines.append("failures: " + ", ".join(f"{k} {v}" for k, v in failures.most_common()))

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 import kitbench  # noqa: F401  (registers the tasks)
-from kitbench.planning import LiftPegUprightPlanner
+from kitbench.planning.lift_peg_upright import LiftPegUprightPlanner
 
 TASK = "kitbench/LiftPegUpright-v1"
 
@@ -53,8 +53,7 @@ def run_episode(env, planner: LiftPegUprightPlanner, seed: int) -> Episode:
         steps += 1
     success = bool(info["success"])
     category = "success" if success else failure_category(planner, info)
-    return Episode(seed, success, steps, category, planner.grasp_attempts, float(info["tilt"]),
-                   float(info["z_error"]))
+    return Episode(seed, success, steps, category, planner.grasp_attempts, float(info["tilt"]), float(info["z_error"]))
 
 
 def run_seeds(seeds: list[int]) -> list[Episode]:
@@ -81,8 +80,10 @@ def report(episodes: list[Episode], seconds: float) -> str:
     lines = [f"LiftPegUpright-v1 expert: {len(wins)}/{n} succeeded ({100.0 * len(wins) / n:.1f}%)"]
     if wins:
         steps = np.array([e.steps for e in wins])
-        lines.append(f"steps over successes: median {np.median(steps):.0f}, p90 {np.percentile(steps, 90):.0f}, "
-                     f"max {steps.max()} (limit 50)")
+        lines.append(
+            f"steps over successes: median {np.median(steps):.0f}, p90 {np.percentile(steps, 90):.0f}, "
+            f"max {steps.max()} (limit 50)"
+        )
     retried = sum(e.grasp_attempts > 1 for e in episodes)
     lines.append(f"episodes that re-grasped: {retried} ({sum(e.grasp_attempts > 1 for e in wins)} of them succeeded)")
     failures = collections.Counter(e.category for e in episodes if not e.success)

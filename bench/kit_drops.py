@@ -35,7 +35,9 @@ def ends_in_pocket(env, kit: int, dyaw_deg: float, shift=(0.0, 0.0), hold_yaw: b
     c, s = math.cos(env.goal_rot), math.sin(env.goal_rot)
     x = env.goal_pos[0] + c * shift[0] - s * shift[1]
     y = env.goal_pos[1] + s * shift[0] + c * shift[1]
-    env.obj.set_pose(sapien.Pose([x, y, env.episodes.board.top + 0.01], yaw_quat(env.goal_rot + math.radians(dyaw_deg))))
+    env.obj.set_pose(
+        sapien.Pose([x, y, env.episodes.board.top + 0.01], yaw_quat(env.goal_rot + math.radians(dyaw_deg)))
+    )
     for _ in range(20):
         _, _, _, _, info = env.step(HOLD)
     return bool(info["in_slot"])
@@ -64,8 +66,10 @@ def main() -> None:
     start = time.perf_counter()
     for kit, episode in enumerate(env.episodes):
         sid = episode.target_shape_id
-        trials = {"square": [(d, (0.0, 0.0), False) for d in (1.0, -1.0)],
-                  "offset": [(d, s, False) for d, s in fitting_offsets(sid, args.offset_drops, rng)]}
+        trials = {
+            "square": [(d, (0.0, 0.0), False) for d in (1.0, -1.0)],
+            "offset": [(d, s, False) for d, s in fitting_offsets(sid, args.offset_drops, rng)],
+        }
         if SYMMETRY[sid] == 2 * math.pi:
             trials["free 10"] = [(d, (0.0, 0.0), False) for d in (10.0, -10.0)]
             trials["held 10"] = [(d, (0.0, 0.0), True) for d in (10.0, -10.0)]
@@ -73,8 +77,10 @@ def main() -> None:
             for dyaw, shift, held in poses:
                 counts[column][sid] += (ends_in_pocket(env, kit, dyaw, shift, held), 1)
     seconds = time.perf_counter() - start
-    print(f"AssemblingKits-v1: drops into the pocket over {len(env.episodes)} default kits, "
-          f"{args.sim_freq} Hz physics (in pocket / drops)")
+    print(
+        f"AssemblingKits-v1: drops into the pocket over {len(env.episodes)} default kits, "
+        f"{args.sim_freq} Hz physics (in pocket / drops)"
+    )
     print(f"{'shape':<20}" + "".join(f"{c:>12}" for c in columns))
     for sid in range(NUM_SHAPES):
         cells = [f"{counts[c][sid][0]}/{counts[c][sid][1]}" if counts[c][sid][1] else "-" for c in columns]

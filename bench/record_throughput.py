@@ -18,10 +18,18 @@ from kitbench.recording.recorder import RecordConfig, record
 def cell(task: str, episodes: int, obs_mode: str, mcap: bool, workers: int) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
     try:
-        s = record(RecordConfig(task=task, episodes=episodes, out=folder / "ds", obs_mode=obs_mode, mcap=mcap,
-                                workers=workers), progress=False)
-        return {"eps_min": 60.0 * s.attempted / s.seconds, "fps": s.frames / s.seconds,
-                "mib_ep": s.size_bytes / 2**20 / max(s.stored, 1), "success": s.successes / s.attempted}
+        s = record(
+            RecordConfig(
+                task=task, episodes=episodes, out=folder / "ds", obs_mode=obs_mode, mcap=mcap, workers=workers
+            ),
+            progress=False,
+        )
+        return {
+            "eps_min": 60.0 * s.attempted / s.seconds,
+            "fps": s.frames / s.seconds,
+            "mib_ep": s.size_bytes / 2**20 / max(s.stored, 1),
+            "success": s.successes / s.attempted,
+        }
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
@@ -42,13 +50,18 @@ def main() -> None:
         for mcap in (False, True):
             for workers in (1, 2):
                 r = results[obs, mcap, workers] = cell(args.task, args.episodes, obs, mcap, workers)
-                print(f"{obs:<6} {'on' if mcap else 'off':<5} {workers:>7} {r['eps_min']:>13.1f} {r['fps']:>9.0f} "
-                      f"{r['mib_ep']:>12.2f}", flush=True)
+                print(
+                    f"{obs:<6} {'on' if mcap else 'off':<5} {workers:>7} {r['eps_min']:>13.1f} {r['fps']:>9.0f} "
+                    f"{r['mib_ep']:>12.2f}",
+                    flush=True,
+                )
     base = results["state", False, 1]["eps_min"]
     print("ratios (episodes/min):")
     for obs in obs_modes:
-        print(f"  {obs}: mcap on/off {results[obs, True, 1]['eps_min'] / results[obs, False, 1]['eps_min']:.2f}, "
-              f"2 workers/1 {results[obs, False, 2]['eps_min'] / results[obs, False, 1]['eps_min']:.2f}")
+        print(
+            f"  {obs}: mcap on/off {results[obs, True, 1]['eps_min'] / results[obs, False, 1]['eps_min']:.2f}, "
+            f"2 workers/1 {results[obs, False, 2]['eps_min'] / results[obs, False, 1]['eps_min']:.2f}"
+        )
     if "rgb" in obs_modes:
         print(f"  rgb/state (1 worker, no mcap) {results['rgb', False, 1]['eps_min'] / base:.2f}")
 

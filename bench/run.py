@@ -67,19 +67,25 @@ def bench_task(task: str, seconds: float, rgb: bool) -> None:
     raw_sleeping = raw_physx_substeps_per_second(task, seconds, sleep_threshold=0.005)
     rows = [
         ("state, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="state")),
-        ("state, pd_ee_delta_pose",
-         env_steps_per_second(task, seconds, obs_mode="state", control_mode="pd_ee_delta_pose")),
+        (
+            "state, pd_ee_delta_pose",
+            env_steps_per_second(task, seconds, obs_mode="state", control_mode="pd_ee_delta_pose"),
+        ),
     ]
     if rgb:
         rows.append(("rgb 128x128, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="rgb")))
     reset_rate = resets_per_second(task, seconds)
     print(f"{task}  (sim {SimConfig().sim_freq} Hz, control {SimConfig().control_freq} Hz, {substeps} substeps)")
     print(f"  raw PhysX: {raw:,.0f} substeps/s = {raw_control:,.0f} control steps/s")
-    print(f"  raw PhysX, idle bodies asleep (sleep threshold 0.005): {raw_sleeping:,.0f} substeps/s = "
-          f"{raw_sleeping / substeps:,.0f} control steps/s ({raw_sleeping / raw:.1f}x; a driven robot never sleeps)")
+    print(
+        f"  raw PhysX, idle bodies asleep (sleep threshold 0.005): {raw_sleeping:,.0f} substeps/s = "
+        f"{raw_sleeping / substeps:,.0f} control steps/s ({raw_sleeping / raw:.1f}x; a driven robot never sleeps)"
+    )
     for name, rate in rows:
-        print(f"  {name:<34} {rate:8,.0f} steps/s   env/raw = {rate / raw_control:6.1%}   "
-              f"env/raw asleep = {rate / (raw_sleeping / substeps):5.1%}")
+        print(
+            f"  {name:<34} {rate:8,.0f} steps/s   env/raw = {rate / raw_control:6.1%}   "
+            f"env/raw asleep = {rate / (raw_sleeping / substeps):5.1%}"
+        )
     print(f"  {'reset(seed)':<34} {reset_rate:8,.0f} resets/s")
     if task in REFERENCE:
         print(f"  reference framework on this machine kind: {REFERENCE[task]}")

@@ -6,6 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from kitbench.errors import KitbenchError
+from kitbench.registration import TASKS
+
 
 def _doctor(args) -> int:
     from kitbench.doctor import run_doctor
@@ -16,11 +19,16 @@ def _doctor(args) -> int:
 def _demo(args) -> int:
     from kitbench.demo import DemoConfig, run_demo
 
-    config = DemoConfig(out=Path(args.out), episodes=args.episodes, eval_episodes=args.eval_episodes,
-                        workers=args.workers, tasks=tuple(args.task) if args.task else DemoConfig.tasks)
+    config = DemoConfig(
+        out=Path(args.out),
+        episodes=args.episodes,
+        eval_episodes=args.eval_episodes,
+        workers=args.workers,
+        tasks=tuple(args.task) if args.task else DemoConfig.tasks,
+    )
     try:
         run_demo(config)
-    except ValueError as exc:
+    except KitbenchError as exc:
         print(f"kitbench demo: error: {exc}", file=sys.stderr)
         return 2
     return 0
@@ -30,10 +38,20 @@ def _record(args) -> int:
     from kitbench.recording.recorder import RecordConfig, load_recipe, record
 
     flags = {
-        "task": args.task, "episodes": args.episodes, "out": args.out, "seed": args.seed, "obs_mode": args.obs_mode,
-        "control_mode": args.control_mode, "policy": args.policy, "only_success": args.only_success or None,
-        "workers": args.workers, "resume": args.resume or None, "overwrite": args.overwrite or None,
-        "mcap": args.mcap, "repo_id": args.repo_id, "commit_interval": args.commit_interval,
+        "task": args.task,
+        "episodes": args.episodes,
+        "out": args.out,
+        "seed": args.seed,
+        "obs_mode": args.obs_mode,
+        "control_mode": args.control_mode,
+        "policy": args.policy,
+        "only_success": args.only_success or None,
+        "workers": args.workers,
+        "resume": args.resume or None,
+        "overwrite": args.overwrite or None,
+        "mcap": args.mcap,
+        "repo_id": args.repo_id,
+        "commit_interval": args.commit_interval,
     }
     try:
         if args.recipe:
@@ -41,10 +59,10 @@ def _record(args) -> int:
         else:
             missing = [f"--{k}" for k in ("task", "episodes", "out") if flags[k] is None]
             if missing:
-                raise ValueError(f"missing {', '.join(missing)} (or give a recipe file)")
+                raise KitbenchError(f"missing {', '.join(missing)} (or give a recipe file)")
             config = RecordConfig(**{k: v for k, v in flags.items() if v is not None} | {"out": Path(args.out)})
         summary = record(config)
-    except ValueError as exc:
+    except KitbenchError as exc:
         print(f"kitbench record: error: {exc}", file=sys.stderr)
         return 2
     for line in summary.lines(config.out):
@@ -65,21 +83,22 @@ def eval_config_from_args(args):
     explicit = frozenset(k for k, v in modes.items() if v is not None)
     if args.suite:
         if args.seed is not None:
-            raise ValueError("--seed and --suite exclude each other (a suite fixes its seeds)")
+            raise KitbenchError("--seed and --suite exclude each other (a suite fixes its seeds)")
         suite = load_suite(args.suite)
         if args.task is not None and args.task != suite.task:
-            raise ValueError(f"--task {args.task} does not match suite {args.suite}, which is for {suite.task}")
+            raise KitbenchError(f"--task {args.task} does not match suite {args.suite}, which is for {suite.task}")
         if args.episodes is not None:
             suite = suite.first(args.episodes)
         suite = suite.with_modes(**modes)
     else:
         missing = [f"--{k}" for k in ("task", "episodes") if getattr(args, k) is None]
         if missing:
-            raise ValueError(f"missing {', '.join(missing)} (or give --suite eval/suites/<name>.toml)")
+            raise KitbenchError(f"missing {', '.join(missing)} (or give --suite eval/suites/<name>.toml)")
         suite = adhoc_suite(args.task, args.episodes, DEFAULT_FIRST_SEED if args.seed is None else args.seed, **modes)
     out = Path(args.out) if args.out else Path("outputs/eval") / suite.task / _slug(args.policy)
-    return EvalConfig(suite=suite, policy=args.policy, out=out, workers=args.workers, videos=args.videos,
-                      explicit=explicit)
+    return EvalConfig(
+        suite=suite, policy=args.policy, out=out, workers=args.workers, videos=args.videos, explicit=explicit
+    )
 
 
 def _eval(args) -> int:
@@ -88,7 +107,7 @@ def _eval(args) -> int:
     try:
         config = eval_config_from_args(args)
         report = run_eval(config)
-    except ValueError as exc:
+    except KitbenchError as exc:
         print(f"kitbench eval: error: {exc}", file=sys.stderr)
         return 2
     for line in summary_lines(report, config.out):
@@ -104,14 +123,19 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="record a small dataset per task and evaluate the expert and random policies")
     demo.add_argument("--out", default="outputs/demo", help="output folder (default: outputs/demo)")
     demo.add_argument("--episodes", type=int, default=5, help="expert episodes recorded per task (default 5)")
-    demo.add_argument("--eval-episodes", dest="eval_episodes", type=int, default=10,
-                      help="episodes per policy evaluation (default 10, the short suites)")
+    demo.add_argument(
+        "--eval-episodes",
+        dest="eval_episodes",
+        type=int,
+        default=10,
+        help="episodes per policy evaluation (default 10, the short suites)",
+    )
     demo.add_argument("--workers", type=int, default=1, help="simulator processes (default 1)")
     demo.add_argument("--task", action="append", help="only this task (repeatable; default both)")
     demo.set_defaults(func=_demo)
     rec = sub.add_parser("record", help="record demonstrations into a LeRobot dataset (+ MCAP logs)")
     rec.add_argument("recipe", nargs="?", help="a recipe file (datasets/<name>.toml); flags override its values")
-    rec.add_argument("--task", help="LiftPegUpright-v1 or AssemblingKits-v1")
+    rec.add_argument("--task", help=f"one of {', '.join(TASKS)}")
     rec.add_argument("--episodes", type=int, help="episodes to store")
     rec.add_argument("--out", help="dataset folder (the LeRobot root; MCAP logs go to <out>/mcap)")
     rec.add_argument("--seed", type=int, help="first seed (default 0); episode k uses seed + k")
@@ -124,22 +148,34 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     rec.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=None, help="write MCAP logs (default on)")
     rec.add_argument("--repo-id", dest="repo_id", help="dataset repo id (default kitbench/<task>)")
-    rec.add_argument("--commit-interval", dest="commit_interval", type=float,
-                     help="seconds between commits (default 30; 0 commits after every episode)")
+    rec.add_argument(
+        "--commit-interval",
+        dest="commit_interval",
+        type=float,
+        help="seconds between commits (default 30; 0 commits after every episode)",
+    )
     rec.set_defaults(func=_record)
     ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")
-    ev.add_argument("--task", help="LiftPegUpright-v1 or AssemblingKits-v1 (implied by --suite)")
-    ev.add_argument("--policy", default="expert",
-                    help="expert (default), random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint>")
+    ev.add_argument("--task", help=f"one of {', '.join(TASKS)} (implied by --suite)")
+    ev.add_argument(
+        "--policy",
+        default="expert",
+        help="expert (default), random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint>",
+    )
     ev.add_argument("--episodes", type=int, help="episodes (with --suite: its first N seeds)")
     ev.add_argument("--seed", type=int, help="first seed without a suite (default 1000000; episode k uses seed + k)")
     ev.add_argument("--suite", help="a suite file (eval/suites/<name>.toml): task, seeds and modes")
-    ev.add_argument("--workers", type=int, default=1, help="simulator processes (default 1); results do not depend on it")
+    ev.add_argument(
+        "--workers", type=int, default=1, help="simulator processes (default 1); results do not depend on it"
+    )
     ev.add_argument("--videos", type=int, default=0, help="episodes to film, failures and successes both (default 0)")
     ev.add_argument("--out", help="report folder (default outputs/eval/<task>/<policy>)")
     ev.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd; image policies imply rgb")
-    ev.add_argument("--control-mode", dest="control_mode",
-                    help="default pd_joint_delta_pos, or the mode a lerobot/replay policy was trained in")
+    ev.add_argument(
+        "--control-mode",
+        dest="control_mode",
+        help="default pd_joint_delta_pos, or the mode a lerobot/replay policy was trained in",
+    )
     ev.add_argument("--reward-mode", dest="reward_mode", help="reward summed into returns (default dense)")
     ev.set_defaults(func=_eval)
     return parser

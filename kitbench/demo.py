@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, make_env
 
 ROOT = Path(__file__).resolve().parents[1]
-SHORT_SUITES = {"LiftPegUpright-v1": "lift_peg_upright_short.toml", "AssemblingKits-v1": "assembling_kits_short.toml"}
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,9 @@ def render_task_frames(out_dir: Path, seed: int = 0, tasks=tuple(TASKS)) -> list
         try:
             obs, _ = env.reset(seed=seed)
             path = out_dir / f"{task}_render.png"
-            Image.fromarray(env.render()).save(path)
+            frame = env.render()
+            assert isinstance(frame, np.ndarray)
+            Image.fromarray(frame).save(path)
             written.append(path)
             for camera, data in obs["sensor_data"].items():
                 path = out_dir / f"{task}_{camera}.png"
@@ -48,33 +50,46 @@ def render_task_frames(out_dir: Path, seed: int = 0, tasks=tuple(TASKS)) -> list
     return written
 
 
-def _suite_file(task: str) -> Path:
-    for base in (Path.cwd(), ROOT):
-        path = base / "eval" / "suites" / SHORT_SUITES[task]
-        if path.is_file():
-            return path
-    raise ValueError(f"no evaluation suite {SHORT_SUITES[task]} under eval/suites")
+def demo_suite(task: str, episodes: int):
+    """The task's short suite (`eval/suites/*_short.toml` naming the task), else its first suite file, cut to
+    `episodes`; a task that ships no suite gets `episodes` seeds from the evaluation range."""
+    from kitbench.evaluation.suite import adhoc_suite, load_suite, shipped_suites
+
+    files = shipped_suites(task, (Path.cwd(), ROOT))
+    if not files:
+        return adhoc_suite(task, episodes)
+    short = [f for f in files if f.stem.endswith("_short")]
+    return load_suite((short or files)[0]).first(episodes)
 
 
 def run_demo(config: DemoConfig, say=print) -> dict:
     """Returns, per task, the dataset folder and the evaluation reports (policy -> report dict)."""
     from kitbench.evaluation.runner import EvalConfig, run_eval, summary_lines
-    from kitbench.evaluation.suite import load_suite
     from kitbench.recording.recorder import RecordConfig, record
 
     unknown = [t for t in config.tasks if t not in TASKS]
     if unknown:
-        raise ValueError(f"unknown task(s) {', '.join(unknown)}; valid choices: {', '.join(TASKS)}")
+        raise KitbenchError(f"unknown task(s) {', '.join(unknown)}; valid choices: {', '.join(TASKS)}")
     out = Path(config.out)
-    suites = {task: load_suite(_suite_file(task)).first(config.eval_episodes) for task in config.tasks}
+    suites = {task: demo_suite(task, config.eval_episodes) for task in config.tasks}
     frames = render_task_frames(out / "frames", tasks=config.tasks)
     say(f"scene snapshots: {out / 'frames'} ({len(frames)} PNG files)")
     results = {}
     for task in config.tasks:
         dataset = out / "datasets" / task
         say(f"\n== {task}: recording {config.episodes} expert episodes (rgb + MCAP)")
-        summary = record(RecordConfig(task=task, episodes=config.episodes, out=dataset, obs_mode="rgb", mcap=True,
-                                      overwrite=True, workers=config.workers), progress=True)
+        summary = record(
+            RecordConfig(
+                task=task,
+                episodes=config.episodes,
+                out=dataset,
+                obs_mode="rgb",
+                mcap=True,
+                overwrite=True,
+                workers=config.workers,
+            ),
+            progress=True,
+        )
         for line in summary.lines(dataset):
             say(f"  {line}")
         say(f"  MCAP logs: {dataset / 'mcap'} (open in Foxglove)")
@@ -83,15 +98,22 @@ def run_demo(config: DemoConfig, say=print) -> dict:
             report_dir = out / "eval" / task / policy
             shutil.rmtree(report_dir, ignore_errors=True)
             say(f"== {task}: evaluating {policy} on {suites[task].name} ({len(suites[task].seeds)} episodes)")
-            reports[policy] = run_eval(EvalConfig(suites[task], policy, report_dir, workers=config.workers,
-                                                  videos=videos))
+            reports[policy] = run_eval(
+                EvalConfig(suites[task], policy, report_dir, workers=config.workers, videos=videos)
+            )
             for line in summary_lines(reports[policy], report_dir):
                 say(f"  {line}")
         results[task] = {"dataset": dataset, "reports": reports}
     say("\nnext:")
     first = config.tasks[0]
-    say(f"  load a dataset:  python -c \"from lerobot.datasets.lerobot_dataset import LeRobotDataset; "
-        f"print(LeRobotDataset('kitbench/{first}', root='{out / 'datasets' / first}'))\"")
-    say("  record more:     kitbench record datasets/lift_peg_upright_state.toml")
-    say("  train:           lerobot-train --config_path=policies/act_lift_peg_upright_state.json")
+    say(
+        f'  load a dataset:  python -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; '
+        f"print(LeRobotDataset('kitbench/{first}', root='{out / 'datasets' / first}'))\""
+    )
+    recipes = sorted(p.name for p in (ROOT / "datasets").glob("*.toml"))
+    configs = sorted(p.name for p in (ROOT / "policies").glob("*.json"))
+    if recipes:
+        say(f"  record more:     kitbench record datasets/{recipes[0]}   (recipes: {', '.join(recipes)})")
+    if configs:
+        say(f"  train:           lerobot-train --config_path=policies/{configs[0]}   (configs: {', '.join(configs)})")
     return results

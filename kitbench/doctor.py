@@ -27,8 +27,14 @@ class Check:
 
 
 def check_versions() -> list[Check]:
-    checks = [Check("python", sys.version_info[:2] == (3, 12), platform.python_version(),
-                    "kitbench needs Python 3.12 (lerobot 0.6 requires it)")]
+    checks = [
+        Check(
+            "python",
+            sys.version_info[:2] == (3, 12),
+            platform.python_version(),
+            "kitbench needs Python 3.12 (lerobot 0.6 requires it)",
+        )
+    ]
     for name in PACKAGES:
         try:
             checks.append(Check(name, True, md.version(name)))
@@ -39,9 +45,11 @@ def check_versions() -> list[Check]:
 
 def check_vulkan() -> Check:
     """Create SAPIEN's render system and name the Vulkan device it picked."""
-    fix = ("no usable Vulkan device: run `make demo` as root to install one (Mesa >= 25 `mesa-vulkan-drivers` "
-           "for CPU rendering, from bookworm-backports on Debian 12), or install your GPU's Vulkan driver and "
-           "`libvulkan1`. State-only simulation works without it.")
+    fix = (
+        "no usable Vulkan device: run `make demo` as root to install one (Mesa >= 25 `mesa-vulkan-drivers` "
+        "for CPU rendering, from bookworm-backports on Debian 12), or install your GPU's Vulkan driver and "
+        "`libvulkan1`. State-only simulation works without it."
+    )
     try:
         import sapien
 
@@ -60,9 +68,23 @@ def check_video_decoding() -> Check:
         with tempfile.TemporaryDirectory() as tmp:
             clip = Path(tmp) / "probe.mp4"
             subprocess.run(
-                ["ffmpeg", "-loglevel", "error", "-f", "lavfi", "-i", "testsrc=size=64x64:rate=10:duration=0.5",
-                 "-pix_fmt", "yuv420p", "-c:v", "libx264", str(clip)],
-                check=True, capture_output=True, timeout=60,
+                [
+                    "ffmpeg",
+                    "-loglevel",
+                    "error",
+                    "-f",
+                    "lavfi",
+                    "-i",
+                    "testsrc=size=64x64:rate=10:duration=0.5",
+                    "-pix_fmt",
+                    "yuv420p",
+                    "-c:v",
+                    "libx264",
+                    str(clip),
+                ],
+                check=True,
+                capture_output=True,
+                timeout=60,
             )
             from torchcodec.decoders import VideoDecoder
 
@@ -70,7 +92,7 @@ def check_video_decoding() -> Check:
             n = int(frames.shape[0])
     except FileNotFoundError:
         return Check("video", False, "ffmpeg not found", fix)
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:  # noqa: BLE001 - any failure here means "cannot decode"
         return Check("video", False, f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", fix)
     return Check("video", n == 5, f"ffmpeg + torchcodec decode ok ({n} frames)", fix)
 

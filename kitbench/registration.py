@@ -1,40 +1,83 @@
-"""The task registry and its gymnasium registration (`kitbench/<Task>-v1`)."""
+"""The task registry: `@register_env` on a task's env class makes it a kitbench task and a gymnasium env.
+
+A task is one module under `kitbench/tasks/` (discovered on import) or anywhere else that is imported before
+use: the decorator is all it takes, in the manner of ManiSkill's `@register_env("LiftPegUpright-v1",
+max_episode_steps=50)`. The id and step limit live in the decorator only; the class gets them as `task_id`
+and `max_episode_steps`, and gymnasium's TimeLimit enforces the limit.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, TypeVar
 
 import gymnasium as gym
+
+from kitbench.errors import KitbenchError
+
+if TYPE_CHECKING:
+    from kitbench.envs.tabletop import TabletopEnv
+
+GYM_NAMESPACE = "kitbench"
+E = TypeVar("E", bound="type[TabletopEnv]")
 
 
 @dataclass(frozen=True)
 class TaskEntry:
     name: str
-    entry_point: str
+    env_class: type[TabletopEnv]
     max_episode_steps: int
 
     @property
     def gym_id(self) -> str:
-        return f"kitbench/{self.name}"
+        return f"{GYM_NAMESPACE}/{self.name}"
 
 
-TASKS: dict[str, TaskEntry] = {
-    t.name: t
-    for t in (
-        TaskEntry("LiftPegUpright-v1", "kitbench.envs.lift_peg_upright:LiftPegUprightEnv", 50),
-        TaskEntry("AssemblingKits-v1", "kitbench.envs.assembling_kits:AssemblingKitsEnv", 200),
-    )
-}
+TASKS: dict[str, TaskEntry] = {}
 
 
-def register_tasks() -> None:
-    for task in TASKS.values():
-        if task.gym_id not in gym.registry:
-            gym.register(id=task.gym_id, entry_point=task.entry_point, max_episode_steps=task.max_episode_steps)
+def register_env(name: str, max_episode_steps: int) -> Callable[[E], E]:
+    """Class decorator: register a task env as `name` (e.g. "LiftPegUpright-v1", gym id `kitbench/<name>`)."""
+    if not isinstance(max_episode_steps, int) or max_episode_steps < 1:
+        raise KitbenchError(f"max_episode_steps must be a positive integer, got {max_episode_steps!r}")
+
+    def decorate(cls: E) -> E:
+        old = TASKS.get(name)
+        if old is not None and (old.env_class.__module__, old.env_class.__qualname__) != (
+            cls.__module__,
+            cls.__qualname__,
+        ):
+            raise KitbenchError(
+                f"task {name!r} is already registered by {old.env_class.__module__}.{old.env_class.__qualname__}"
+            )
+        cls.task_id = name
+        cls.max_episode_steps = max_episode_steps
+        entry = TaskEntry(name, cls, max_episode_steps)
+        TASKS[name] = entry
+        # re-registration (a module imported again) replaces the entry rather than warning
+        gym.registry.pop(entry.gym_id, None)
+        creator: Callable[..., gym.Env] = cls
+        gym.register(id=entry.gym_id, entry_point=creator, max_episode_steps=max_episode_steps)
+        return cls
+
+    return decorate
+
+
+def unregister_env(name: str) -> None:
+    """Forget task `name` (for tasks defined on the fly, e.g. in a test or a notebook)."""
+    entry = task_entry(name)
+    del TASKS[name]
+    gym.registry.pop(entry.gym_id, None)
+
+
+def task_entry(name: str) -> TaskEntry:
+    """The registered task `name`, with an error naming every registered task otherwise."""
+    if name not in TASKS:
+        raise KitbenchError(f"unknown task {name!r}; valid choices: {', '.join(TASKS) or '(none registered)'}")
+    return TASKS[name]
 
 
 def make_env(task: str, **kwargs) -> gym.Env:
     """`gymnasium.make` for a kitbench task by its short name, with a clear error for unknown names."""
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r}; valid choices: {', '.join(TASKS)}")
-    return gym.make(TASKS[task].gym_id, **kwargs)
+    return gym.make(task_entry(task).gym_id, **kwargs)

@@ -12,9 +12,9 @@ import pytest
 import sapien
 
 import kitbench  # noqa: F401
-from kitbench.envs.assembling_kits import AssemblingKitsEnv, yaw_error
 from kitbench.geometry import axis_quat, matrix_to_quat, quat_to_matrix, yaw_quat
 from kitbench.kits import SYMMETRY, EpisodeFileError
+from kitbench.tasks.assembling_kits import AssemblingKitsEnv, yaw_error
 
 TASK = "kitbench/AssemblingKits-v1"
 HOLD = np.array([0, 0, 0, 0, 0, 0, 0, -1], dtype=np.float32)
@@ -98,7 +98,15 @@ def test_yaw_is_read_robustly_from_a_tilted_shape(env):
 def test_goal_fields_seat_the_shape(env):
     obs, _ = env.reset(seed=5)
     extra = obs["extra"]
-    assert set(extra) >= {"obj_pose", "tcp_to_obj_pos", "goal_pos", "goal_rot", "obj_to_goal_pos", "shape_id", "symmetry"}
+    assert set(extra) >= {
+        "obj_pose",
+        "tcp_to_obj_pos",
+        "goal_pos",
+        "goal_rot",
+        "obj_to_goal_pos",
+        "shape_id",
+        "symmetry",
+    }
     assert extra["symmetry"][0] == pytest.approx(SYMMETRY[int(extra["shape_id"][0])])
     env.obj.set_pose(sapien.Pose(extra["goal_pos"], yaw_quat(float(extra["goal_rot"][0]))))
     assert env.evaluate()["success"]
@@ -115,7 +123,7 @@ def test_seated_shape_keeps_success_for_200_steps(env):
 
 def test_shapes_do_not_tunnel_through_board_or_table(env):
     for seed in range(12):
-        obs, _ = env.reset(seed=seed)
+        env.reset(seed=seed)
         rest = env.obj.pose.p.copy()
         env.obj.set_pose(sapien.Pose(rest + [0, 0, 0.1], env.obj.pose.q))  # drop from 10 cm, under the hand
         for _ in range(30):
@@ -163,7 +171,9 @@ def test_bad_episode_index(env):
 
 
 def test_robot_must_have_the_wrist_camera():
-    with pytest.raises(ValueError, match="robot 'panda' is not supported by AssemblingKitsEnv; valid choices: panda_wristcam"):
+    with pytest.raises(
+        ValueError, match="robot 'panda' is not supported by AssemblingKitsEnv; valid choices: panda_wristcam"
+    ):
         gym.make(TASK, robot_uids="panda")
 
 

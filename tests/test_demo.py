@@ -30,6 +30,6 @@ def test_demo_records_and_evaluates_every_task(tmp_path, needs_vulkan):
 
 
 def test_demo_refuses_an_unknown_task(tmp_path):
-    with pytest.raises(ValueError, match="unknown task.*Nope-v1.*valid choices"):
+    with pytest.raises(ValueError, match=r"unknown task.*Nope-v1.*valid choices"):
         run_demo(DemoConfig(out=tmp_path / "x", tasks=("Nope-v1",)))
     assert not (tmp_path / "x").exists()

@@ -13,9 +13,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import kitbench  # noqa: F401
-from kitbench.envs.lift_peg_upright import PEG_HALF_WIDTH, LYING_QUAT
 from kitbench.geometry import quat_to_matrix
 from kitbench.sim.scene import set_actor_pose
+from kitbench.tasks.lift_peg_upright import LYING_QUAT, PEG_HALF_WIDTH
 
 TASK = "kitbench/LiftPegUpright-v1"
 
@@ -145,11 +145,20 @@ def test_wrong_action_shape_raises():
 @pytest.mark.parametrize(
     "kwargs,needle",
     [
-        ({"obs_mode": "pointcloud"}, "unknown obs_mode 'pointcloud'; valid choices: none, state, state_dict, rgb, rgbd"),
+        (
+            {"obs_mode": "pointcloud"},
+            "unknown obs_mode 'pointcloud'; valid choices: none, state, state_dict, rgb, rgbd",
+        ),
         ({"control_mode": "pd_joint_vel"}, "unknown control_mode 'pd_joint_vel'; valid choices: pd_joint_delta_pos"),
-        ({"reward_mode": "shaped"}, "unknown reward_mode 'shaped'; valid choices: dense, normalized_dense, sparse, none"),
+        (
+            {"reward_mode": "shaped"},
+            "unknown reward_mode 'shaped'; valid choices: dense, normalized_dense, sparse, none",
+        ),
         ({"robot_uids": "ur5"}, "unknown robot_uids 'ur5'; valid choices: panda, panda_wristcam"),
-        ({"robot_uids": "panda_wristcam"}, "robot 'panda_wristcam' is not supported by LiftPegUprightEnv; valid choices: panda"),
+        (
+            {"robot_uids": "panda_wristcam"},
+            "robot 'panda_wristcam' is not supported by LiftPegUprightEnv; valid choices: panda",
+        ),
     ],
 )
 def test_bad_construction_arguments_name_value_and_choices(kwargs, needle):
@@ -159,7 +168,7 @@ def test_bad_construction_arguments_name_value_and_choices(kwargs, needle):
 
 
 def test_unknown_render_mode_raises():
-    from kitbench.envs.lift_peg_upright import LiftPegUprightEnv
+    from kitbench.tasks.lift_peg_upright import LiftPegUprightEnv
 
     with pytest.raises(ValueError, match="unknown render_mode 'ansi'; valid choices: None, rgb_array"):
         LiftPegUprightEnv(render_mode="ansi")
@@ -174,7 +183,9 @@ def test_state_observation_layout():
     flat_env = make(obs_mode="state")
     flat, _ = flat_env.reset(seed=2)
     assert flat.dtype == np.float32 and flat.shape == (32,)
-    expected = np.concatenate([obs["agent"]["qpos"], obs["agent"]["qvel"], obs["extra"]["tcp_pose"], obs["extra"]["peg_pose"]])
+    expected = np.concatenate(
+        [obs["agent"]["qpos"], obs["agent"]["qvel"], obs["extra"]["tcp_pose"], obs["extra"]["peg_pose"]]
+    )
     np.testing.assert_array_equal(flat, expected)
     none_env = make(obs_mode="none")
     assert none_env.reset(seed=2)[0].shape == (0,)
@@ -189,7 +200,9 @@ def test_reward_modes():
     assert 0 < rewards["dense"] < 3
     assert rewards["normalized_dense"] == pytest.approx(rewards["dense"] / 3)
     assert rewards["sparse"] == 0.0 and rewards["none"] == 0.0
-    set_actor_pose(envs["dense"].unwrapped.peg, [0.08, 0.08, 0.12], (math.cos(math.pi / 4), 0, -math.sin(math.pi / 4), 0))
+    set_actor_pose(
+        envs["dense"].unwrapped.peg, [0.08, 0.08, 0.12], (math.cos(math.pi / 4), 0, -math.sin(math.pi / 4), 0)
+    )
     _, r, terminated, _, info = envs["dense"].step(np.array([0, 0, 0, 0, 0, 0, 0, -1], dtype=np.float32))
     assert info["success"] and terminated and r == 3.0
 

@@ -7,11 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import pytest
 
-import kitbench  # noqa: F401
+import kitbench
+from kitbench.envs.grasp import GraspHistory
 from kitbench.evaluation.episode import EpisodeResult
-from kitbench.evaluation.outcomes import FAILURE_CATEGORIES, GraspWatch, failure_category
+from kitbench.evaluation.outcomes import failure_category
 from kitbench.evaluation.report import without_timing
 from kitbench.evaluation.runner import EvalConfig, pick_video_seeds, run_eval
 from kitbench.evaluation.stats import describe, wilson_interval
@@ -22,8 +24,9 @@ SUITES = sorted((ROOT / "eval" / "suites").glob("*.toml"))
 
 
 # -- statistics ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("k,n,lo,hi", [(0, 10, 0.0, 0.2775), (10, 10, 0.7225, 1.0), (5, 10, 0.2366, 0.7634),
-                                       (95, 100, 0.8882, 0.9785)])
+@pytest.mark.parametrize(
+    "k,n,lo,hi", [(0, 10, 0.0, 0.2775), (10, 10, 0.7225, 1.0), (5, 10, 0.2366, 0.7634), (95, 100, 0.8882, 0.9785)]
+)
 def test_wilson_interval_matches_published_values(k, n, lo, hi):
     a, b = wilson_interval(k, n)
     assert a == pytest.approx(lo, abs=1e-4) and b == pytest.approx(hi, abs=1e-4)
@@ -47,15 +50,24 @@ def test_one_committed_suite_per_task():
     assert {load_suite(p).task for p in SUITES} == set(kitbench.TASKS)
 
 
-@pytest.mark.parametrize("body,message", [
-    ('task = "Nope-v1"\nseeds = [1]', "unknown task 'Nope-v1'; valid choices: LiftPegUpright-v1"),
-    ('task = "LiftPegUpright-v1"\nseeds = [1, 1]', "seeds repeat"),
-    ('task = "LiftPegUpright-v1"\nseeds = "all"', "seeds must be a list"),
-    ('task = "LiftPegUpright-v1"\nseeds = [1]\ncontrol_mode = "fast"', "unknown control_mode 'fast'; valid choices"),
-    ('task = "LiftPegUpright-v1"\nseeds = [1]\nepisodes = 3', "unknown key(s) episodes; valid keys"),
-    ('seeds = [1]', "missing required key 'task'"),
-    ('task = "LiftPegUpright-v1"\nseeds = [1', "invalid TOML"),
-])
+@pytest.mark.parametrize(
+    "body,message",
+    [
+        (
+            'task = "Nope-v1"\nseeds = [1]',
+            "unknown task 'Nope-v1'; valid choices: AssemblingKits-v1, LiftPegUpright-v1",
+        ),
+        ('task = "LiftPegUpright-v1"\nseeds = [1, 1]', "seeds repeat"),
+        ('task = "LiftPegUpright-v1"\nseeds = "all"', "seeds must be a list"),
+        (
+            'task = "LiftPegUpright-v1"\nseeds = [1]\ncontrol_mode = "fast"',
+            "unknown control_mode 'fast'; valid choices",
+        ),
+        ('task = "LiftPegUpright-v1"\nseeds = [1]\nepisodes = 3', "unknown key(s) episodes; valid keys"),
+        ("seeds = [1]", "missing required key 'task'"),
+        ('task = "LiftPegUpright-v1"\nseeds = [1', "invalid TOML"),
+    ],
+)
 def test_bad_suite_files_name_the_file_and_the_problem(tmp_path, body, message):
     path = tmp_path / "bad.toml"
     path.write_text(body)
@@ -73,36 +85,73 @@ def test_suite_cut_and_adhoc():
 
 
 # -- outcomes --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def ak_env():
+    env = gym.make("kitbench/AssemblingKits-v1")
+    yield env
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def lpu_env():
+    env = gym.make("kitbench/LiftPegUpright-v1")
+    yield env
+    env.close()
+
+
 def _ak_info(pos, rot, slot, dist=0.1):
-    return {"success": pos and rot and slot, "pos_correct": pos, "rot_correct": rot, "in_slot": slot,
-            "pos_diff_norm": dist}
+    return {
+        "success": pos and rot and slot,
+        "pos_correct": pos,
+        "rot_correct": rot,
+        "in_slot": slot,
+        "pos_diff_norm": dist,
+    }
 
 
-@pytest.mark.parametrize("info,ever,held,expected", [
-    (_ak_info(True, True, True, 0.0), True, False, None),
-    (_ak_info(True, True, False, 0.01), True, True, "not_inserted"),
-    (_ak_info(True, False, False, 0.01), True, False, "misaligned"),
-    (_ak_info(False, True, False, 0.04), True, True, "misaligned"),
-    (_ak_info(False, False, False), False, False, "never_grasped"),
-    (_ak_info(False, False, False), True, False, "dropped"),
-    (_ak_info(False, False, False), True, True, "not_transported"),
-])
-def test_assembling_kits_failure_categories(info, ever, held, expected):
-    category = failure_category("AssemblingKits-v1", info, GraspWatch(ever, held))
+@pytest.mark.parametrize(
+    "info,ever,held,expected",
+    [
+        (_ak_info(True, True, True, 0.0), True, False, None),
+        (_ak_info(True, True, False, 0.01), True, True, "not_inserted"),
+        (_ak_info(True, False, False, 0.01), True, False, "misaligned"),
+        (_ak_info(False, True, False, 0.04), True, True, "misaligned"),
+        (_ak_info(False, False, False), False, False, "never_grasped"),
+        (_ak_info(False, False, False), True, False, "dropped"),
+        (_ak_info(False, False, False), True, True, "not_transported"),
+    ],
+)
+def test_assembling_kits_failure_categories(ak_env, info, ever, held, expected):
+    category = failure_category(ak_env, info, GraspHistory(ever, held))
     assert category == expected
-    assert category is None or category in FAILURE_CATEGORIES["AssemblingKits-v1"]
+    assert category is None or category in ak_env.unwrapped.failure_categories
 
 
-@pytest.mark.parametrize("tilt,z,ever,held,expected", [
-    (0.01, 0.001, True, True, None),
-    (1.5, 0.1, False, False, "never_grasped"),
-    (1.5, 0.1, True, False, "dropped"),
-    (0.5, 0.001, True, True, "not_upright"),
-    (0.01, 0.02, True, True, "wrong_height"),
-])
-def test_lift_peg_failure_categories(tilt, z, ever, held, expected):
-    info = {"success": tilt < 0.08 and z < 0.005, "tilt": tilt, "z_error": z}
-    assert failure_category("LiftPegUpright-v1", info, GraspWatch(ever, held)) == expected
+@pytest.mark.parametrize(
+    "tilt,z,ever,held,expected",
+    [
+        (0.01, 0.001, True, True, None),
+        (1.5, 0.1, False, False, "never_grasped"),
+        (1.5, 0.1, True, False, "dropped"),
+        (0.5, 0.001, True, True, "not_upright"),
+        (0.01, 0.02, True, True, "wrong_height"),
+    ],
+)
+def test_lift_peg_failure_categories(lpu_env, tilt, z, ever, held, expected):
+    info = {
+        "success": tilt < 0.08 and z < 0.005,
+        "upright": tilt < 0.08,
+        "at_height": z < 0.005,
+        "tilt": tilt,
+        "z_error": z,
+    }
+    assert failure_category(lpu_env, info, GraspHistory(ever, held)) == expected
+
+
+def test_a_category_outside_the_tasks_list_is_a_bug(lpu_env, monkeypatch):
+    monkeypatch.setattr(type(lpu_env.unwrapped), "failure_category", lambda self, info, grasp: "gremlins")
+    with pytest.raises(RuntimeError, match="'gremlins', which is not in its failure_categories"):
+        failure_category(lpu_env, {"success": False}, GraspHistory())
 
 
 def _result(seed, success):
@@ -119,9 +168,25 @@ def test_videos_show_failures_and_successes_in_seed_order():
 
 
 # -- end to end ------------------------------------------------------------------------------------
-REPORT_KEYS = {"report_version", "kitbench_version", "task", "policy", "suite", "episodes", "success", "criteria",
-               "episode_length", "steps_to_success", "seconds_to_success", "return", "return_by_outcome",
-               "failure_categories", "per_episode", "output", "timing"}
+REPORT_KEYS = {
+    "report_version",
+    "kitbench_version",
+    "task",
+    "policy",
+    "suite",
+    "episodes",
+    "success",
+    "criteria",
+    "episode_length",
+    "steps_to_success",
+    "seconds_to_success",
+    "return",
+    "return_by_outcome",
+    "failure_categories",
+    "per_episode",
+    "output",
+    "timing",
+}
 
 
 def _suite(task, n, **modes):
@@ -147,8 +212,12 @@ def test_expert_report_has_every_field_and_scores_like_its_benchmark(expert_repo
     assert without_timing(on_disk) == json.loads(json.dumps(without_timing(report)))
     md = (out / "report.md").read_text()
     assert "**Success: 100.0% (6/6" in md and "Failures by category" in md
-    assert {p.name for p in (out / "plots").iterdir()} == {"success.png", "episode_length.png", "return.png",
-                                                            "steps_to_success.png"}
+    assert {p.name for p in (out / "plots").iterdir()} == {
+        "success.png",
+        "episode_length.png",
+        "return.png",
+        "steps_to_success.png",
+    }
 
 
 def test_random_policy_scores_zero_and_failures_are_categorised(tmp_path):
@@ -186,20 +255,27 @@ def test_videos_replay_the_scored_episodes(tmp_path, needs_vulkan):
 
 # -- command line ----------------------------------------------------------------------------------
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "kitbench.cli", "eval", *args], capture_output=True, text=True,
-                          timeout=600, cwd=ROOT)
+    return subprocess.run(
+        [sys.executable, "-m", "kitbench.cli", "eval", *args], capture_output=True, text=True, timeout=600, cwd=ROOT
+    )
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--task", "LiftPegUpright-v1", "--episodes", "2", "--policy", "clever"], "unknown policy 'clever'; valid choices"),
-    (["--task", "Nope-v1", "--episodes", "2"], "unknown task 'Nope-v1'; valid choices"),
-    (["--task", "LiftPegUpright-v1"], "missing --episodes"),
-    (["--suite", "eval/suites/lift_peg_upright.toml", "--seed", "3"], "--seed and --suite exclude each other"),
-    (["--suite", "eval/suites/lift_peg_upright.toml", "--task", "AssemblingKits-v1"], "does not match suite"),
-    (["--task", "LiftPegUpright-v1", "--episodes", "2", "--control-mode", "warp"], "unknown control_mode 'warp'"),
-    (["--task", "LiftPegUpright-v1", "--episodes", "2", "--workers", "0"], "workers must be a positive integer"),
-    (["--task", "LiftPegUpright-v1", "--episodes", "2", "--policy", "replay:/nonexistent"], "no LeRobot dataset"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (
+            ["--task", "LiftPegUpright-v1", "--episodes", "2", "--policy", "clever"],
+            "unknown policy 'clever'; valid choices",
+        ),
+        (["--task", "Nope-v1", "--episodes", "2"], "unknown task 'Nope-v1'; valid choices"),
+        (["--task", "LiftPegUpright-v1"], "missing --episodes"),
+        (["--suite", "eval/suites/lift_peg_upright.toml", "--seed", "3"], "--seed and --suite exclude each other"),
+        (["--suite", "eval/suites/lift_peg_upright.toml", "--task", "AssemblingKits-v1"], "does not match suite"),
+        (["--task", "LiftPegUpright-v1", "--episodes", "2", "--control-mode", "warp"], "unknown control_mode 'warp'"),
+        (["--task", "LiftPegUpright-v1", "--episodes", "2", "--workers", "0"], "workers must be a positive integer"),
+        (["--task", "LiftPegUpright-v1", "--episodes", "2", "--policy", "replay:/nonexistent"], "no LeRobot dataset"),
+    ],
+)
 def test_cli_bad_input_is_refused_and_nothing_is_written(tmp_path, args, message):
     out = tmp_path / "report"
     result = _cli(*args, "--out", str(out))
@@ -209,8 +285,16 @@ def test_cli_bad_input_is_refused_and_nothing_is_written(tmp_path, args, message
 
 
 def test_cli_runs_a_suite_and_prints_the_summary(tmp_path):
-    result = _cli("--suite", "eval/suites/lift_peg_upright_short.toml", "--episodes", "2", "--policy", "zero",
-                  "--out", str(tmp_path))
+    result = _cli(
+        "--suite",
+        "eval/suites/lift_peg_upright_short.toml",
+        "--episodes",
+        "2",
+        "--policy",
+        "zero",
+        "--out",
+        str(tmp_path),
+    )
     assert result.returncode == 0, result.stderr
     assert "LiftPegUpright-v1 · zero · 2 episodes: success 0.0%" in result.stdout
     report = json.loads((tmp_path / "report.json").read_text())

@@ -94,8 +94,11 @@ def test_panda_has_no_self_contacts_at_rest():
     for q in [READY_ARM_QPOS, *rng.uniform(robot.arm_limits[:, 0], robot.arm_limits[:, 1], (5, 7))]:
         robot.reset(q)
         scene.step()
-        pairs = {(c.bodies[0].entity.name, c.bodies[1].entity.name) for c in scene.get_contacts()
-                 if min(p.separation for p in c.points) < 0}
+        pairs = {
+            (c.bodies[0].entity.name, c.bodies[1].entity.name)
+            for c in scene.get_contacts()
+            if min(p.separation for p in c.points) < 0
+        }
         assert not {p for p in pairs if p in {("panda_hand", "panda_link7"), ("panda_link7", "panda_hand")}}
     robot.reset(READY_ARM_QPOS)
     scene.step()

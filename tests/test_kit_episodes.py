@@ -177,7 +177,7 @@ BAD_CASES = {
     "missing_yaw": (_delete(("episodes", 1, "slots", 2, "yaw")), "episodes[1].slots[2]: missing field 'yaw'"),
     "string_shape_id": (
         _set((*E0, "slots", 0, "shape_id"), "3"),
-        "episodes[0].slots[0].shape_id: expected an integer, got \"3\" (str)",
+        'episodes[0].slots[0].shape_id: expected an integer, got "3" (str)',
     ),
     "unknown_shape_id": (
         _set(("episodes", 2, "slots", 3, "shape_id"), 25),

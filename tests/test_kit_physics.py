@@ -18,7 +18,9 @@ from shapely.geometry import MultiPoint
 
 import kitbench  # noqa: F401
 from kitbench.geometry import yaw_quat
-from kitbench.kits import NUM_SHAPES, SYMMETRY, load_episodes, shape_geometry
+from kitbench.kits import DEFAULT_PAD_WIDTH, NUM_SHAPES, SYMMETRY, load_episodes, shape_geometry
+from kitbench.kits.shapes import narrowest_grasp
+from kitbench.robots.panda import FINGER_PAD_WIDTH, MAX_GRASP_WIDTH
 from kitbench.sim.actors import convex_collision_shape, cooked_vertices
 
 TASK = "kitbench/AssemblingKits-v1"
@@ -48,6 +50,17 @@ def _hull_error(piece: np.ndarray, material: physx.PhysxMaterial) -> float:
     return max(want.hausdorff_distance(got), float(dz))
 
 
+def test_every_shape_has_a_grasp_the_panda_hand_spans():
+    # ShapeGeometry.grasp_angle / grasp_width, which the planner falls back on, are computed for the default pads.
+    assert DEFAULT_PAD_WIDTH == FINGER_PAD_WIDTH
+    too_wide = {}
+    for shape_id in range(NUM_SHAPES):
+        _, width = narrowest_grasp(shape_id, pad_width=FINGER_PAD_WIDTH)
+        if width > MAX_GRASP_WIDTH:
+            too_wide[shape_id] = width
+    assert not too_wide, f"narrowest Panda grasp wider than {MAX_GRASP_WIDTH} m: {too_wide}"
+
+
 def test_cooked_hulls_keep_the_exact_geometry_of_every_board_and_shape():
     material = physx.PhysxMaterial(1.0, 1.0, 0.0)
     episodes = load_episodes(None)
@@ -67,8 +80,10 @@ def _drop(env, episode_index: int, dyaw_deg: float, hold_yaw: bool = False) -> d
     env.reset(seed=0, options={"episode_index": episode_index})
     if hold_yaw:
         env.obj_body.set_locked_motion_axes([False, False, False, True, True, True])
-    pose = sapien.Pose([env.goal_pos[0], env.goal_pos[1], env.episodes.board.top + 0.01],
-                       yaw_quat(env.goal_rot + math.radians(dyaw_deg)))
+    pose = sapien.Pose(
+        [env.goal_pos[0], env.goal_pos[1], env.episodes.board.top + 0.01],
+        yaw_quat(env.goal_rot + math.radians(dyaw_deg)),
+    )
     env.obj.set_pose(pose)
     for _ in range(20):
         _, _, _, _, info = env.step(HOLD)
@@ -87,8 +102,12 @@ def test_released_near_goal_yaw_the_shape_falls_into_its_slot_in_every_kit(env, 
 def test_held_ten_degrees_off_an_asymmetric_shape_cannot_enter_in_any_kit(env, shape_id):
     """The 4-degree rule is meaningful only if the pocket walls stop a wrongly turned shape. Its yaw is held:
     a free shape landing on the rim can turn itself into the pocket as it tips in (see docs/kit-physics.md)."""
-    entered = [(i, dyaw) for i in _kits_by_target(env, shape_id) for dyaw in (10.0, -10.0)
-               if _drop(env, i, dyaw, hold_yaw=True)["in_slot"]]
+    entered = [
+        (i, dyaw)
+        for i in _kits_by_target(env, shape_id)
+        for dyaw in (10.0, -10.0)
+        if _drop(env, i, dyaw, hold_yaw=True)["in_slot"]
+    ]
     assert not entered, f"shape {shape_id} entered at 10 degrees off (kit, yaw offset): {entered}"
 
 

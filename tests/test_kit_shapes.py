@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import ast
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,17 +13,19 @@ from scipy.spatial import ConvexHull
 from shapely.geometry import Polygon, box
 from shapely.ops import unary_union
 
+import kitbench.kits as kits
 from kitbench.kits.board import BOARD_SIZE, POCKET_DEPTH, SLOT_FLOOR, board_geometry
 from kitbench.kits.convex import convex_decompose, extrude_convex, is_convex_polygon, mesh_volume
 from kitbench.kits.shapes import (
-    FINGER_PAD_WIDTH,
-    MAX_GRASP_WIDTH,
+    DEFAULT_PAD_WIDTH,
     MITRE_LIMIT,
     NUM_SHAPES,
     SHAPE_HEIGHT,
     SYMMETRY,
     grasp_width,
+    grasp_width_at,
     min_thickness,
+    narrowest_grasp,
     place,
     rotational_symmetry_residual,
     shape_geometry,
@@ -118,7 +122,7 @@ def test_footprint_and_frame(shape_id):
 @pytest.mark.parametrize("shape_id", SHAPE_IDS)
 def test_graspable_across_some_direction(shape_id):
     g = shape_geometry(shape_id)
-    assert 0.008 <= g.grasp_width <= MAX_GRASP_WIDTH
+    assert g.grasp_width >= 0.008  # the Panda's upper bound is checked with the robot, in test_kit_physics.py
     assert grasp_width(shape_id, g.grasp_angle) == pytest.approx(g.grasp_width)
     # narrowest over a finer grid is not much narrower than the reported one
     fine = min(grasp_width(shape_id, t) for t in np.linspace(0, math.pi, 61))
@@ -134,7 +138,21 @@ def test_grasp_width_on_known_shapes():
     assert grasp_width(16, 0.0) == pytest.approx(0.042)  # ring: across the outer rim
     # a pad strip offset well beyond the shape touches nothing
     assert grasp_width(3, 0.0, center=(0.0, 0.2)) == 0.0
-    assert FINGER_PAD_WIDTH == 0.018
+
+
+def test_grasp_width_takes_the_pad_width():
+    # square 36 x 36 mm, pads centred 25 mm off its axis: 18 mm pads reach its edge at 18 mm, 4 mm pads do not
+    assert grasp_width(3, 0.0, pad_width=0.018, center=(0.0, 0.025)) == pytest.approx(0.036)
+    assert grasp_width(3, 0.0, pad_width=0.004, center=(0.0, 0.025)) == 0.0
+    outline = shape_geometry(3).outline
+    assert grasp_width_at(outline, 0.4) == grasp_width_at(outline, 0.4, pad_width=DEFAULT_PAD_WIDTH)
+    assert DEFAULT_PAD_WIDTH == 0.018
+    # the cached narrowest grasp is the default pads'; other pads are computed on request
+    g = shape_geometry(0)
+    assert narrowest_grasp(0) == (g.grasp_angle, g.grasp_width)
+    theta, width = narrowest_grasp(0, pad_width=0.002)
+    assert width == pytest.approx(grasp_width(0, theta, pad_width=0.002))
+    assert width <= g.grasp_width + 1e-12
 
 
 @pytest.mark.parametrize("shape_id", SHAPE_IDS)
@@ -262,7 +280,7 @@ def test_board_pieces_are_exact(slots):
 
 def test_board_slot_polygons_are_placed_slots():
     b = board_geometry(TYPICAL_KIT, clearance=0.003)
-    for (sid, x, y, yaw), poly in zip(TYPICAL_KIT, b.slot_polygons):
+    for (sid, x, y, yaw), poly in zip(TYPICAL_KIT, b.slot_polygons, strict=True):
         assert poly.equals_exact(place(slot_outline(sid, 0.003), x, y, yaw), 1e-12)
         # a shape seated at the slot pose fits inside its pocket with the clearance all round
         seated = place(shape_geometry(sid).outline, x, y, yaw)
@@ -291,7 +309,9 @@ def test_default_boards_have_no_sliver_pieces():
     from kitbench.kits import load_episodes
 
     episodes = load_episodes(None)
-    thinnest = min(_caliper_width(p) for i in range(len(episodes)) for p in episodes.board_geometry(i).top_convex_polygons)
+    thinnest = min(
+        _caliper_width(p) for i in range(len(episodes)) for p in episodes.board_geometry(i).top_convex_polygons
+    )
     assert thinnest > 0.0003
 
 
@@ -310,3 +330,17 @@ def test_turned_ten_degrees_an_asymmetric_shape_fits_its_slot_nowhere(shape_id):
     for dyaw in (10 * DEG, -10 * DEG):
         assert not any(slot.contains(place(outline, dx, dy, dyaw)) for dx in shifts for dy in shifts)
     assert slot.contains(place(outline, 0.0, 0.0, DEG)) and slot.contains(place(outline, 0.0, 0.0, -DEG))
+
+
+def test_package_type_checking_imports_match_the_lazy_exports():
+    """kitbench.kits re-exports lazily; the names type checkers see are listed separately and must agree."""
+    tree = ast.parse(Path(kits.__file__).read_text(encoding="utf-8"))
+    block = next(n for n in tree.body if isinstance(n, ast.If) and ast.unparse(n.test) == "TYPE_CHECKING")
+    seen = {
+        alias.name: node.module.rsplit(".", 1)[1]
+        for node in block.body
+        if isinstance(node, ast.ImportFrom) and node.module
+        for alias in node.names
+    }
+    assert seen == kits._EXPORTS
+    assert all(getattr(kits, name) is not None for name in kits.__all__)

@@ -26,9 +26,18 @@ def checkpoint(tmp_path_factory):
     data = base / "lpu_state"
     record(RecordConfig(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False), progress=False)
     out = base / "train"
-    cmd = [str(BIN / "lerobot-train"), f"--config_path={ROOT / 'policies/act_lift_peg_upright_state.json'}",
-           f"--dataset.root={data}", f"--output_dir={out}", "--steps=4", "--batch_size=4", "--num_workers=0",
-           "--save_freq=4", "--env_eval_freq=0", "--log_freq=2"]
+    cmd = [
+        str(BIN / "lerobot-train"),
+        f"--config_path={ROOT / 'policies/act_lift_peg_upright_state.json'}",
+        f"--dataset.root={data}",
+        f"--output_dir={out}",
+        "--steps=4",
+        "--batch_size=4",
+        "--num_workers=0",
+        "--save_freq=4",
+        "--env_eval_freq=0",
+        "--log_freq=2",
+    ]
     run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=base)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
@@ -38,12 +47,14 @@ def checkpoint(tmp_path_factory):
 
 
 def test_env_plugin_is_discovered_by_lerobot():
-    code = ("from lerobot.utils.import_utils import register_third_party_plugins\n"
-            "register_third_party_plugins()\n"
-            "from lerobot.envs.configs import EnvConfig\n"
-            "cls = EnvConfig.get_choice_class('kitbench')\n"
-            "cfg = cls(task='AssemblingKits-v1', obs_type='pixels_state')\n"
-            "print(sorted(cfg.features_map.values()))\n")
+    code = (
+        "from lerobot.utils.import_utils import register_third_party_plugins\n"
+        "register_third_party_plugins()\n"
+        "from lerobot.envs.configs import EnvConfig\n"
+        "cls = EnvConfig.get_choice_class('kitbench')\n"
+        "cfg = cls(task='AssemblingKits-v1', obs_type='pixels_state')\n"
+        "print(sorted(cfg.features_map.values()))\n"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=OFFLINE, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "observation.images.hand_camera" in out.stdout and "observation.environment_state" in out.stdout
@@ -63,9 +74,27 @@ def test_lerobot_env_speaks_lerobot_names(needs_vulkan):
 
 def test_kitbench_eval_scores_the_trained_checkpoint(checkpoint, tmp_path):
     out = tmp_path / "report"
-    result = subprocess.run([sys.executable, "-m", "kitbench.cli", "eval", "--policy", f"lerobot:{checkpoint}",
-                             "--suite", "eval/suites/lift_peg_upright_short.toml", "--episodes", "2", "--out", str(out)],
-                            capture_output=True, text=True, timeout=600, cwd=ROOT, env=OFFLINE)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kitbench.cli",
+            "eval",
+            "--policy",
+            f"lerobot:{checkpoint}",
+            "--suite",
+            "eval/suites/lift_peg_upright_short.toml",
+            "--episodes",
+            "2",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+        env=OFFLINE,
+    )
     assert result.returncode == 0, result.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["policy"] == f"lerobot:{checkpoint}" and report["episodes"] == 2
@@ -78,7 +107,7 @@ def test_kitbench_eval_refuses_another_control_mode_than_the_training_one(checkp
     from kitbench.evaluation.suite import adhoc_suite
 
     suite = adhoc_suite("LiftPegUpright-v1", 1, control_mode="pd_joint_pos")
-    with pytest.raises(ValueError, match="trained on pd_joint_delta_pos actions.*--control-mode pd_joint_delta_pos"):
+    with pytest.raises(ValueError, match=r"trained on pd_joint_delta_pos actions.*--control-mode pd_joint_delta_pos"):
         validate(EvalConfig(suite, f"lerobot:{checkpoint}", Path("unused"), explicit=frozenset({"control_mode"})))
 
 
@@ -96,10 +125,37 @@ def test_mismatched_policy_lists_expected_and_provided(checkpoint):
 
 
 def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan):
-    cmd = [str(BIN / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=kitbench",
-           "--env.task=LiftPegUpright-v1", "--eval.n_episodes=1", "--eval.batch_size=1",
-           "--eval.use_async_envs=false", f"--output_dir={tmp_path / 'eval'}"]
+    cmd = [
+        str(BIN / "lerobot-eval"),
+        f"--policy.path={checkpoint}",
+        "--policy.device=cpu",
+        "--env.type=kitbench",
+        "--env.task=LiftPegUpright-v1",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        "--eval.use_async_envs=false",
+        f"--output_dir={tmp_path / 'eval'}",
+    ]
     run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
+
+
+def test_lerobot_eval_runs_async_vector_envs(checkpoint, tmp_path, needs_vulkan):
+    """Spawned vector-env workers unpickle the env config: its class must be importable at module level."""
+    cmd = [
+        str(BIN / "lerobot-eval"),
+        f"--policy.path={checkpoint}",
+        "--policy.device=cpu",
+        "--env.type=kitbench",
+        "--env.task=LiftPegUpright-v1",
+        "--eval.n_episodes=2",
+        "--eval.batch_size=2",
+        "--eval.use_async_envs=true",
+        f"--output_dir={tmp_path / 'eval'}",
+    ]
+    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2

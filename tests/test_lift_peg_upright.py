@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import kitbench  # noqa: F401  (registers the tasks)
-from kitbench.envs.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH, peg_success
 from kitbench.geometry import axis_quat, matrix_to_quat, quat_to_matrix
 from kitbench.sim.scene import set_actor_pose
+from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH, peg_success
 from tests.scripted import WaypointFollower
 
 

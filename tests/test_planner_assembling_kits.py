@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 
 import kitbench  # noqa: F401
-from kitbench.envs.assembling_kits import yaw_error
 from kitbench.geometry import planar_yaw, quat_to_matrix
-from kitbench.planning import AssemblingKitsPlanner
-from kitbench.planning.assembling_kits import signed_yaw_options
+from kitbench.planning.assembling_kits import AssemblingKitsPlanner, signed_yaw_options
+from kitbench.tasks.assembling_kits import yaw_error
 
 # seed: shape — a disc lying on the table next to the board, a hexagon (2 pi / 6), a rectangle (pi), a kite
 # (asymmetric), a square on the board (pi / 2)
@@ -22,11 +21,12 @@ SEEDS = {0: 11, 1: 17, 24: 6, 6: 15, 28: 3}
 def _run(env, seed):
     obs, info = env.reset(seed=seed)
     planner = AssemblingKitsPlanner(env)
-    for step in range(200):
+    steps = 0
+    while True:
         obs, _, terminated, truncated, info = env.step(planner.act(obs))
+        steps += 1
         if terminated or truncated:
-            break
-    return info, step + 1, planner
+            return info, steps, planner
 
 
 @pytest.fixture(scope="module")
@@ -58,11 +58,14 @@ def test_expert_in_joint_delta_mode():
     assert info["success"]
 
 
-@pytest.mark.parametrize("delta,symmetry,expected", [
-    (0.3, 2 * math.pi, [0.3 - 2 * math.pi, 0.3]),
-    (0.3, math.pi / 2, [0.3 + k * math.pi / 2 for k in range(-4, 4)]),
-    (1.0, 0.0, [0.0]),
-])
+@pytest.mark.parametrize(
+    "delta,symmetry,expected",
+    [
+        (0.3, 2 * math.pi, [0.3 - 2 * math.pi, 0.3]),
+        (0.3, math.pi / 2, [0.3 + k * math.pi / 2 for k in range(-4, 4)]),
+        (1.0, 0.0, [0.0]),
+    ],
+)
 def test_yaw_options_are_the_goal_yaws_equivalent_under_symmetry(delta, symmetry, expected):
     options = signed_yaw_options(delta, symmetry)
     np.testing.assert_allclose(sorted(options), sorted(expected), atol=1e-12)

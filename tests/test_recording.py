@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import kitbench  # noqa: F401
+import kitbench
 from kitbench.recording.recorder import RecordConfig, load_recipe, record
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -38,8 +38,10 @@ def _columns(root: Path) -> dict[str, np.ndarray]:
 @pytest.fixture(scope="module")
 def state_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("rec") / "lpu_state"
-    summary = record(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, seed=0,
-                                  control_mode="pd_joint_delta_pos"), progress=False)
+    summary = record(
+        RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_delta_pos"),
+        progress=False,
+    )
     return out, summary
 
 
@@ -76,7 +78,12 @@ def test_assembling_kits_metadata_names_kit_and_shape_beside_the_dataset_episode
     for m in meta:
         env.reset(seed=m["seed"])
         assert (m["kit_episode"], m["kit_id"], m["shape_id"], m["shape"], m["task"]) == (
-            env.episode_index, env.episode.kit_id, env.shape.shape_id, env.shape.name, env.task_description())
+            env.episode_index,
+            env.episode.kit_id,
+            env.shape.shape_id,
+            env.shape.name,
+            env.task_description(),
+        )
     assert len(_load(out)) == sum(m["length"] for m in meta)
 
 
@@ -91,15 +98,13 @@ def test_replaying_recorded_actions_reproduces_recorded_states(state_dataset):
     out, _ = state_dataset
     cols = _columns(out)
     env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_joint_delta_pos")
-    from kitbench.recording.rollout import robot_state
-
     for episode in range(3):
         rows = np.flatnonzero(cols["episode_index"].reshape(-1) == episode)
         seed = int(cols["episode_seed"][rows[0]][0])
         env.reset(seed=seed)
         u = env.unwrapped
         for r in rows:
-            np.testing.assert_array_equal(robot_state(u), cols["observation.state"][r])
+            np.testing.assert_array_equal(u.robot_state(), cols["observation.state"][r])
             np.testing.assert_array_equal(u.environment_state(), cols["observation.environment_state"][r])
             env.step(cols["action"][r])
 
@@ -113,14 +118,16 @@ def test_mcap_logs_use_foxglove_schemas_and_match_frames(state_dataset):
         with open(out / "mcap" / f"episode_{m['episode_index']:06d}.mcap", "rb") as f:
             reader = make_reader(f)
             summary = reader.get_summary()
-            topics = {c.topic: (summary.schemas[c.schema_id].name, c.message_encoding) for c in summary.channels.values()}
+            topics = {
+                c.topic: (summary.schemas[c.schema_id].name, c.message_encoding) for c in summary.channels.values()
+            }
             counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
             assert topics["/tf"] == ("foxglove.FrameTransforms", "protobuf")
             assert topics["/joint_states"] == ("foxglove.JointStates", "protobuf")
             assert {"/action", "/reward", "/planner"} <= set(topics)
             assert all(n == m["length"] for n in counts.values()), counts
             times = [msg.log_time for _, ch, msg in reader.iter_messages(topics=["/reward"])]
-            assert times == [int(round((i + 1) * 0.05e9)) for i in range(m["length"])]  # simulation time
+            assert times == [round((i + 1) * 0.05e9) for i in range(m["length"])]  # simulation time
 
 
 def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan, capfd):
@@ -142,8 +149,10 @@ def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan, capfd):
 def test_two_workers_give_the_same_dataset_as_one(tmp_path):
     one, two = tmp_path / "w1", tmp_path / "w2"
     record(RecordConfig(task="LiftPegUpright-v1", episodes=4, out=one, policy="random", mcap=False), progress=False)
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=4, out=two, policy="random", mcap=False, workers=2),
-           progress=False)
+    record(
+        RecordConfig(task="LiftPegUpright-v1", episodes=4, out=two, policy="random", mcap=False, workers=2),
+        progress=False,
+    )
     a, b = _columns(one), _columns(two)
     assert a.keys() == b.keys()
     for key in a:
@@ -152,8 +161,9 @@ def test_two_workers_give_the_same_dataset_as_one(tmp_path):
 
 def test_only_success_counts_but_does_not_store_failures(tmp_path):
     out = tmp_path / "only"
-    summary = record(RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, only_success=True, mcap=True),
-                     progress=False)
+    summary = record(
+        RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, only_success=True, mcap=True), progress=False
+    )
     assert summary.stored == 2 and summary.attempted == summary.successes + summary.failures_dropped
     assert len(list((out / "mcap").glob("*.mcap"))) == 2
 
@@ -184,8 +194,9 @@ def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_datas
     """Episodes replay from their seed only under the same physics and assets, so a dataset never mixes versions."""
     out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     before = sorted(p.name for p in out.rglob("*"))
-    config = RecordConfig(task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_delta_pos",
-                          resume=True)
+    config = RecordConfig(
+        task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_delta_pos", resume=True
+    )
     with pytest.raises(ValueError, match=rf"kitbench_version: recorded '0.0.1', asked '{kitbench.__version__}'"):
         record(config, progress=False)
     assert sorted(p.name for p in out.rglob("*")) == before
@@ -197,8 +208,10 @@ def test_eval_replays_the_recorded_episodes(state_dataset, tmp_path):
     from kitbench.evaluation.suite import adhoc_suite
 
     out, _ = state_dataset
-    report = run_eval(EvalConfig(suite=adhoc_suite("LiftPegUpright-v1", 3, seed=0), policy=f"replay:{out}",
-                                 out=tmp_path / "eval"), progress=False)
+    report = run_eval(
+        EvalConfig(suite=adhoc_suite("LiftPegUpright-v1", 3, seed=0), policy=f"replay:{out}", out=tmp_path / "eval"),
+        progress=False,
+    )
     episodes = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
     scored = {e["seed"]: (e["success"], e["length"]) for e in report["per_episode"]}
     assert scored == {e["seed"]: (e["success"], e["length"]) for e in episodes}
@@ -209,9 +222,12 @@ def test_eval_refuses_to_replay_a_recording_on_another_task(state_dataset, tmp_p
     from kitbench.evaluation.runner import EvalConfig, run_eval
     from kitbench.evaluation.suite import adhoc_suite
 
-    config = EvalConfig(suite=adhoc_suite("AssemblingKits-v1", 2, seed=0), policy=f"replay:{state_dataset[0]}",
-                        out=tmp_path / "eval")
-    with pytest.raises(ValueError, match="was recorded on LiftPegUpright-v1 .* evaluate it with --task LiftPegUpright-v1"):
+    config = EvalConfig(
+        suite=adhoc_suite("AssemblingKits-v1", 2, seed=0), policy=f"replay:{state_dataset[0]}", out=tmp_path / "eval"
+    )
+    with pytest.raises(
+        ValueError, match=r"was recorded on LiftPegUpright-v1 .* evaluate it with --task LiftPegUpright-v1"
+    ):
         run_eval(config, progress=False)
     assert not (tmp_path / "eval").exists()
 
@@ -221,8 +237,11 @@ def test_replay_of_an_unrecorded_seed_names_the_recorded_ones(state_dataset):
 
     env = gym.make("kitbench/LiftPegUpright-v1")
     obs, info = env.reset(seed=7)
-    with pytest.raises(ValueError, match=r"no episode recorded with seed 7; recorded seeds: \[0, 1, 2\] "
-                                         r"\(evaluate them with --seed 0 --episodes 3\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"no episode recorded with seed 7; recorded seeds: \[0, 1, 2\] "
+        r"\(evaluate them with --seed 0 --episodes 3\)",
+    ):
         ReplayPolicy(str(state_dataset[0])).reset(env, 7, obs, info)
 
 
@@ -233,8 +252,10 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert ReplayPolicy(str(state_dataset[0])).requirements() == {"task": "LiftPegUpright-v1",
-                                                                      "control_mode": "pd_joint_delta_pos"}
+        assert ReplayPolicy(str(state_dataset[0])).requirements() == {
+            "task": "LiftPegUpright-v1",
+            "control_mode": "pd_joint_delta_pos",
+        }
     out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     with pytest.warns(UserWarning, match="recorded with kitbench 0.0.1"):
         ReplayPolicy(str(out))
@@ -243,7 +264,7 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
 @pytest.mark.parametrize(
     "kwargs,needle",
     [
-        ({"task": "StackCube-v1"}, "unknown task 'StackCube-v1'; valid choices: LiftPegUpright-v1, AssemblingKits-v1"),
+        ({"task": "StackCube-v1"}, "unknown task 'StackCube-v1'; valid choices: AssemblingKits-v1, LiftPegUpright-v1"),
         ({"control_mode": "pd_joint_vel"}, "unknown control_mode 'pd_joint_vel'; valid choices"),
         ({"obs_mode": "pointcloud"}, "unknown obs_mode 'pointcloud' for recording; valid choices: state, rgb, rgbd"),
         ({"policy": "oracle"}, "unknown policy 'oracle'; valid choices: expert, random, zero"),
@@ -286,8 +307,21 @@ def test_kill_minus_nine_keeps_committed_episodes_and_resume_finishes(tmp_path):
     """Kill a recording mid-run: the folder loads with stock lerobot, and --resume ends where an
     uninterrupted run ends, frame for frame."""
     out, reference = tmp_path / "killed", tmp_path / "reference"
-    cmd = [sys.executable, "-m", "kitbench.cli", "record", "--task", "LiftPegUpright-v1", "--episodes", "6",
-           "--policy", "random", "--no-mcap", "--commit-interval", "0"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kitbench.cli",
+        "record",
+        "--task",
+        "LiftPegUpright-v1",
+        "--episodes",
+        "6",
+        "--policy",
+        "random",
+        "--no-mcap",
+        "--commit-interval",
+        "0",
+    ]
     proc = subprocess.Popen([*cmd, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline:

@@ -26,9 +26,10 @@ def test_every_task_has_act_and_diffusion_for_state_and_images():
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
 def test_config_parses_with_lerobot_and_matches_its_recipe(path):
     import draccus
-    import lerobot_env_kitbench  # noqa: F401  (the env choice, as lerobot-train discovers it)
     from lerobot.configs.train import TrainPipelineConfig
     from lerobot.policies import ACTConfig, DiffusionConfig  # noqa: F401  (policy choices)
+
+    import lerobot_env_kitbench  # noqa: F401  (the env choice, as lerobot-train discovers it)
 
     cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=[])
     raw = json.loads(path.read_text())

@@ -19,10 +19,17 @@ wind up, a target never leads the measured state by more than `MAX_JOINT_LEAD` /
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
 import numpy as np
 from gymnasium import spaces
 
+from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+
+if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never need
+    from kitbench.control.kinematics import PandaKinematics
 
 CONTROL_MODES = ("pd_joint_delta_pos", "pd_joint_pos", "pd_ee_delta_pos", "pd_ee_delta_pose", "pd_ee_pose")
 MAX_JOINT_LEAD = 0.2  # rad
@@ -50,18 +57,29 @@ class Controller:
     mode: str
     action_space: spaces.Box
 
-    def __init__(self, arm_limits: np.ndarray, kinematics_factory):
+    def __init__(self, arm_limits: np.ndarray, kinematics_factory: Callable[[], PandaKinematics]) -> None:
         self.arm_limits = arm_limits
         self._kinematics_factory = kinematics_factory
-        self._kinematics = None
-        self.joint_target = None  # (7,) last arm joint target
-        self.tcp_target = None  # 4x4 base-frame TCP target of end-effector modes
+        self._kinematics: PandaKinematics | None = None
+        self._joint_target: np.ndarray | None = None  # (7,) last arm joint target, set by reset()
+        self.tcp_target: np.ndarray | None = None  # 4x4 base-frame TCP target of end-effector modes
 
     @property
-    def kinematics(self):
+    def kinematics(self) -> PandaKinematics:
         if self._kinematics is None:  # built on first use: joint modes never pay for MuJoCo
             self._kinematics = self._kinematics_factory()
         return self._kinematics
+
+    @property
+    def joint_target(self) -> np.ndarray:
+        """The (7,) last arm joint target."""
+        if self._joint_target is None:
+            raise RuntimeError("the controller has no joint target before reset()")
+        return self._joint_target
+
+    @joint_target.setter
+    def joint_target(self, value: np.ndarray) -> None:
+        self._joint_target = value
 
     def reset(self, arm_qpos: np.ndarray) -> None:
         self.joint_target = np.array(arm_qpos, dtype=np.float64)
@@ -111,8 +129,9 @@ class _EEDelta(Controller):
     def _delta_target(self, translation, rotation, arm_qpos) -> np.ndarray:
         measured = self.kinematics.tcp_pose(arm_qpos)
         target = measured.copy() if self.tcp_target is None else self.tcp_target.copy()
-        target[:3, 3] = np.clip(target[:3, 3] + translation, measured[:3, 3] - MAX_POS_LEAD,
-                                measured[:3, 3] + MAX_POS_LEAD)
+        target[:3, 3] = np.clip(
+            target[:3, 3] + translation, measured[:3, 3] - MAX_POS_LEAD, measured[:3, 3] + MAX_POS_LEAD
+        )
         if rotation is not None:
             target[:3, :3] = _limit_rotation_lead(axis_angle_to_matrix(rotation) @ target[:3, :3], measured[:3, :3])
         return self._solve(target)
@@ -162,7 +181,7 @@ def pose_to_ee_action(tcp_pose: np.ndarray) -> np.ndarray:
 _CONTROLLERS = {c.mode: c for c in (JointDeltaPos, JointPos, EEDeltaPos, EEDeltaPose, EEPose)}
 
 
-def make_controller(mode: str, arm_limits: np.ndarray, kinematics_factory) -> Controller:
+def make_controller(mode: str, arm_limits: np.ndarray, kinematics_factory: Callable[[], PandaKinematics]) -> Controller:
     if mode not in _CONTROLLERS:
-        raise ValueError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
+        raise KitbenchError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
     return _CONTROLLERS[mode](arm_limits, kinematics_factory)

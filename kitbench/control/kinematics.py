@@ -15,8 +15,15 @@ import numpy as np
 from kitbench.robots.assets import panda_mujoco_urdf
 from kitbench.robots.panda import ARM_JOINTS, READY_ARM_QPOS, TCP_LINK
 
-ARM_VELOCITY_LIMITS = {"panda_joint1": 2.175, "panda_joint2": 2.175, "panda_joint3": 2.175, "panda_joint4": 2.175,
-                       "panda_joint5": 2.61, "panda_joint6": 2.61, "panda_joint7": 2.61}
+ARM_VELOCITY_LIMITS = {
+    "panda_joint1": 2.175,
+    "panda_joint2": 2.175,
+    "panda_joint3": 2.175,
+    "panda_joint4": 2.175,
+    "panda_joint5": 2.61,
+    "panda_joint6": 2.61,
+    "panda_joint7": 2.61,
+}
 
 
 @functools.cache
@@ -61,8 +68,14 @@ class PandaKinematics:
         self._load(arm_qpos)
         return self.configuration.get_transform_frame_to_world(TCP_LINK, "body").as_matrix()
 
-    def solve(self, target: np.ndarray, arm_qpos_init, pos_tol: float = 1e-4, rot_tol: float = 1e-3,
-              max_iterations: int | None = None) -> tuple[np.ndarray, bool]:
+    def solve(
+        self,
+        target: np.ndarray,
+        arm_qpos_init,
+        pos_tol: float = 1e-4,
+        rot_tol: float = 1e-3,
+        max_iterations: int | None = None,
+    ) -> tuple[np.ndarray, bool]:
         """Arm joint positions reaching the 4x4 TCP target from `arm_qpos_init`; returns (qpos, converged)."""
         self._load(arm_qpos_init)
         self.tcp_task.set_target(mink.SE3.from_matrix(target))
@@ -78,7 +91,14 @@ class PandaKinematics:
             if pos_err + rot_err > 0.9 * previous:  # stalled (a limit or the posture term): more is wasted
                 break
             previous = pos_err + rot_err
-            velocity = mink.solve_ik(self.configuration, tasks, self.dt, "daqp", damping=1e-6,
-                                     limits=self.limits, constraints=self.constraints)
+            velocity = mink.solve_ik(
+                self.configuration,
+                tasks,
+                self.dt,
+                "daqp",
+                damping=1e-6,
+                limits=self.limits,
+                constraints=self.constraints,
+            )
             self.configuration.integrate_inplace(velocity, self.dt)
         return self.configuration.q[:7].copy(), converged

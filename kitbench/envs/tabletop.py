@@ -1,40 +1,76 @@
-"""The gymnasium environment shared by kitbench's tabletop tasks.
+"""The gymnasium environment shared by kitbench's tabletop tasks, and the hooks a task implements.
 
-A task subclass declares its robots, cameras and limits and implements five hooks: build its actors, place them
-for a new episode, evaluate success, report its state fields and compute its dense reward. Everything else
-(modes, the robot, control, stepping, observation and rendering) lives here once.
+A task is one module (see `kitbench/tasks/`): a subclass of `TabletopEnv` registered with
+`@register_env("<Name>-v1", max_episode_steps=N)`. Everything else (modes, the robot, control, stepping,
+observations, rendering) lives here once, and everything outside the task (recording, evaluation, policies,
+the LeRobot plugin) asks the task through the public hooks below, never by its name.
+
+Hooks the base calls while building and stepping (protected, as in ManiSkill): `_load_task`,
+`_initialize_episode`, `_sensor_cameras`, `_render_camera`. Hooks the rest of kitbench calls (public):
+`evaluate`, `task_state`, `compute_dense_reward`, `task_description`, `target_object`, `failure_category`,
+`tracked_frames`, `episode_config`, `make_expert`, and the class attributes `success_criteria`,
+`failure_categories`, `environment_state_keys`, `report_groups`.
 """
 
 from __future__ import annotations
 
+import abc
+import importlib
+from typing import Any, ClassVar
+
 import gymnasium as gym
 import numpy as np
 import sapien
+from gymnasium import spaces
 
 from kitbench.control.controllers import CONTROL_MODES, make_controller
 from kitbench.control.kinematics import PandaKinematics
-from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, REWARD_MODES, check_choice
+from kitbench.envs.grasp import GraspHistory
+from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, REWARD_MODES
 from kitbench.envs.observations import flatten_state, pose7, space_for
-from kitbench.robots.panda import READY_ARM_QPOS, ROBOTS, Panda, gripper_action_to_target
+from kitbench.errors import KitbenchError, check_choice
+from kitbench.robots.panda import ARM_JOINTS, READY_ARM_QPOS, ROBOTS, Panda, gripper_action_to_target
 from kitbench.sim.cameras import Camera, CameraSpec
 from kitbench.sim.scene import SimConfig, add_table_and_ground, create_scene
 
 ROBOT_BASE = sapien.Pose([-0.615, 0.0, 0.0])
+# LeRobot's `observation.state`: what a real Panda reports of itself, no simulator-only quantities.
+ROBOT_STATE_NAMES = (*ARM_JOINTS, "gripper_opening")
+POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
 
 
-class TabletopEnv(gym.Env):
+class TabletopEnv(gym.Env, abc.ABC):
     """A Panda at a table, one task's objects, PhysX CPU, optional cameras."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    # gymnasium declares `metadata` as an instance attribute; each env copies it with its own render_fps
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
 
-    supported_robots: tuple[str, ...] = ("panda",)
-    supported_reward_modes: tuple[str, ...] = REWARD_MODES
-    max_episode_steps: int = 50
-    max_dense_reward: float = 1.0
-    default_qpos_noise: float = 0.02
+    # Set by @register_env: the task's id ("LiftPegUpright-v1") and its step limit.
+    task_id: ClassVar[str]
+    max_episode_steps: ClassVar[int]
+
+    supported_robots: ClassVar[tuple[str, ...]] = ("panda",)
+    supported_reward_modes: ClassVar[tuple[str, ...]] = REWARD_MODES
+    max_dense_reward: ClassVar[float] = 1.0
+    default_qpos_noise: ClassVar[float] = 0.02
     # Which of the task's state fields describe the world (objects, goals) rather than the robot: these form
     # LeRobot's `observation.environment_state`.
-    environment_state_keys: tuple[str, ...] = ()
+    environment_state_keys: ClassVar[tuple[str, ...]] = ()
+    # Boolean keys of `evaluate()` whose conjunction is success: reports give each one's rate.
+    success_criteria: ClassVar[tuple[str, ...]] = ()
+    # Every value `failure_category` can return, in the order of the task's stages (reports list them so).
+    # Default: one "not_<criterion>" per success criterion.
+    failure_categories: ClassVar[tuple[str, ...]] = ()
+    # (id key, name key) of `episode_config()` by which reports break success down, e.g. per shape; None: none.
+    report_groups: ClassVar[tuple[str, str] | None] = None
+    # The task's scripted expert: its class, or "module:Class" (as gymnasium's entry points), which keeps the
+    # planner's module, which needs the task's geometry, from being imported by the task's own module.
+    expert: ClassVar[str | type | None] = None
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.success_criteria and not cls.failure_categories:
+            cls.failure_categories = tuple(f"not_{c}" for c in cls.success_criteria)
 
     def __init__(
         self,
@@ -52,7 +88,7 @@ class TabletopEnv(gym.Env):
         check_choice("reward_mode", reward_mode, self.supported_reward_modes)
         check_choice("robot_uids", robot_uids, tuple(ROBOTS))
         if robot_uids not in self.supported_robots:
-            raise ValueError(
+            raise KitbenchError(
                 f"robot {robot_uids!r} is not supported by {type(self).__name__}; "
                 f"valid choices: {', '.join(self.supported_robots)}"
             )
@@ -66,50 +102,95 @@ class TabletopEnv(gym.Env):
         self.metadata = {**self.metadata, "render_fps": self.sim_config.control_freq}
         self._renders = obs_mode in IMAGE_OBS_MODES or render_mode == "rgb_array"
 
-        self.scene: sapien.Scene | None = None
-        self.robot: Panda | None = None
+        # The scene and robot exist from the first reset (below) until close().
+        self.scene: sapien.Scene
+        self.robot: Panda
         self._robot_spec = ROBOTS[robot_uids]
         self.controller = make_controller(control_mode, self._arm_limits(), PandaKinematics)
         self._cameras: dict[str, Camera] = {}
         self._human_camera: Camera | None = None
-        self.action_space = self.controller.action_space
+        self.action_space: spaces.Box = self.controller.action_space
         self.elapsed_steps = 0
-        self._last_info: dict = {}
         obs, _ = self.reset(seed=0)
         self.observation_space = space_for(obs)
 
-    # -- task hooks ------------------------------------------------------------------------------
+    # -- task hooks: building and stepping (called by this class) ------------------------------
+    @abc.abstractmethod
     def _load_task(self, scene: sapien.Scene, render: bool) -> None:
-        """Build the task's actors into a fresh scene (visual shapes only when `render`)."""
-        raise NotImplementedError
+        """Build the task's actors into a fresh scene (visual shapes only when `render`): every episode gets a
+        new scene so that it is reproducible from its seed alone."""
 
+    @abc.abstractmethod
     def _initialize_episode(self, rng: np.random.Generator, options: dict) -> None:
-        """Place the task's objects for a new episode."""
-        raise NotImplementedError
+        """Place the task's objects for a new episode, drawing only from `rng` (the episode's seed)."""
 
+    def _sensor_cameras(self) -> list[CameraSpec]:
+        """The task's own observation cameras (the robot adds its own): what image policies see."""
+        return []
+
+    def _render_camera(self) -> CameraSpec:
+        """The third-person camera of `render()` (videos): framed on the task's workspace."""
+        return CameraSpec.looking_at("render_camera", [0.6, 0.7, 0.6], [0.0, 0.0, 0.35], 512, 512, 1.0)
+
+    # -- task hooks: what the rest of kitbench asks the task --------------------------------------
+    @abc.abstractmethod
     def evaluate(self) -> dict:
-        raise NotImplementedError
+        """The task's measurements of the current state: `success`, every name in `success_criteria` (bool)
+        and the errors behind them. Returned as `info` by reset and step, and scored by reports."""
 
-    def _task_state(self, info: dict) -> dict[str, np.ndarray]:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def task_state(self) -> dict[str, np.ndarray]:
+        """The task's state fields (object poses, goals, ...), float32 arrays: they extend the state
+        observation under `extra`, and those in `environment_state_keys` form LeRobot's environment state."""
 
+    @abc.abstractmethod
     def compute_dense_reward(self, info: dict) -> float:
-        raise NotImplementedError
+        """A shaped reward in [0, max_dense_reward] that reaches the maximum on success."""
 
+    @abc.abstractmethod
     def task_description(self) -> str:
-        """The natural-language instruction for the current episode."""
-        raise NotImplementedError
+        """The natural-language instruction for the current episode (LeRobot's per-episode `task`)."""
+
+    @property
+    @abc.abstractmethod
+    def target_object(self) -> sapien.Entity:
+        """The actor the task is about: evaluation follows whether the robot holds it, logs follow its pose."""
+
+    def failure_category(self, info: dict, grasp: GraspHistory) -> str | None:
+        """Why an episode that ended in state `info` failed (one of `failure_categories`; None on success),
+        judged from the earliest stage that went wrong. Default: the first criterion not met."""
+        if info["success"]:
+            return None
+        for name in self.success_criteria:
+            if not info[name]:
+                return f"not_{name}"
+        return self.failure_categories[-1] if self.failure_categories else "failed"
+
+    def tracked_frames(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World poses (position, wxyz quaternion) by frame name that logs show beside the robot's links:
+        the target object by default; tasks add goals and fixtures."""
+        pose = self.target_object.pose
+        return {self.target_object.name: (pose.p, pose.q)}
 
     def episode_config(self) -> dict:
         """What the current episode's seed chose beyond object poses (AssemblingKits: the kit and the shape), as
         plain values for dataset metadata and evaluation reports."""
         return {}
 
-    def _sensor_cameras(self) -> list[CameraSpec]:
-        return []
+    def make_expert(self) -> Any:
+        """The task's scripted expert for this env (planning `pd_joint_pos` targets: `reset(obs, info)`,
+        `act(obs)`, `phase`, `tcp_target`), built from `expert`; None when the task has none."""
+        entry = type(self).expert
+        if entry is None:
+            return None
+        if isinstance(entry, str):
+            module, _, name = entry.partition(":")
+            entry = getattr(importlib.import_module(module), name)
+        return entry(self)
 
-    def _render_camera(self) -> CameraSpec:
-        return CameraSpec.looking_at("render_camera", [0.6, 0.7, 0.6], [0.0, 0.0, 0.35], 512, 512, 1.0)
+    @classmethod
+    def has_expert(cls) -> bool:
+        return cls.expert is not None
 
     # -- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -124,7 +205,6 @@ class TabletopEnv(gym.Env):
         self._initialize_episode(rng, options)
         self.elapsed_steps = 0
         info = self.evaluate()
-        self._last_info = info
         return self._observation(info), dict(info)
 
     def step(self, action):
@@ -136,7 +216,6 @@ class TabletopEnv(gym.Env):
             self.scene.step()
         self.elapsed_steps += 1
         info = self.evaluate()
-        self._last_info = info
         reward = self._reward(info)
         terminated = bool(info["success"])
         return self._observation(info), reward, terminated, False, dict(info)
@@ -154,8 +233,9 @@ class TabletopEnv(gym.Env):
         """Free the scene and everything in it (cameras, robot, actors)."""
         self._cameras = {}
         self._human_camera = None
-        self.robot = None
-        self.scene = None
+        # dropping the references lets PhysX and the renderer free the scene; the env needs a reset to run again
+        for name in ("robot", "scene"):
+            self.__dict__.pop(name, None)
 
     # -- internals --------------------------------------------------------------------------------
     def _build_world(self) -> None:
@@ -171,8 +251,7 @@ class TabletopEnv(gym.Env):
         self._load_task(self.scene, self._renders)
         self._cameras, self._human_camera = {}, None
         if self.obs_mode in IMAGE_OBS_MODES:
-            specs = [*self._sensor_cameras(), *self._robot_spec.cameras]
-            self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in specs}
+            self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in self.camera_specs()}
         if self.render_mode == "rgb_array":
             self._human_camera = Camera(self.scene, self._render_camera(), None)
 
@@ -192,9 +271,9 @@ class TabletopEnv(gym.Env):
         a = np.asarray(action, dtype=np.float32)
         shape = self.action_space.shape
         if a.shape != shape:
-            raise ValueError(f"action has shape {a.shape}; {self.control_mode} expects shape {shape}")
+            raise KitbenchError(f"action has shape {a.shape}; {self.control_mode} expects shape {shape}")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains NaN or inf: {a.tolist()}")
+            raise KitbenchError(f"action contains NaN or inf: {a.tolist()}")
         return np.clip(a, self.action_space.low, self.action_space.high)
 
     def _reward(self, info: dict) -> float:
@@ -205,29 +284,60 @@ class TabletopEnv(gym.Env):
         dense = self.compute_dense_reward(info)
         return dense / self.max_dense_reward if self.reward_mode == "normalized_dense" else dense
 
-    def state_dict(self, info: dict) -> dict:
+    def state_dict(self) -> dict:
         """The nested state observation: `agent` (qpos, qvel) and `extra` (tcp_pose and the task's fields)."""
         extra = {"tcp_pose": pose7(self.robot.tcp_pose())}
-        extra.update(self._task_state(info))
+        extra.update(self.task_state())
         return {
             "agent": {"qpos": self.robot.qpos().astype(np.float32), "qvel": self.robot.qvel().astype(np.float32)},
             "extra": extra,
         }
 
+    def robot_state(self) -> np.ndarray:
+        """LeRobot's `observation.state`: 7 arm joint positions and the gripper opening (sum of the two finger
+        joints, metres), named by `ROBOT_STATE_NAMES`."""
+        q = self.robot.qpos()
+        return np.append(q[:7], q[7] + q[8]).astype(np.float32)
+
     def environment_state(self) -> np.ndarray:
         """Object and goal state as one float32 vector (see `environment_state_keys`)."""
-        fields = self._task_state(self._last_info)
-        return np.concatenate([np.asarray(fields[k], dtype=np.float32).reshape(-1) for k in self.environment_state_keys])
+        fields = self.task_state()
+        return np.concatenate(
+            [np.asarray(fields[k], dtype=np.float32).reshape(-1) for k in self.environment_state_keys]
+        )
+
+    def environment_state_names(self) -> list[str]:
+        """One name per entry of `environment_state()`: `<field>.<x|...|qz>` for poses, `<field>.<i>` else."""
+        fields = self.task_state()
+        names: list[str] = []
+        for key in self.environment_state_keys:
+            size = int(np.asarray(fields[key]).size)
+            if size == 7 and key.endswith("pose"):
+                names += [f"{key}.{n}" for n in POSE_NAMES]
+            elif size == 1:
+                names.append(key)
+            else:
+                names += [f"{key}.{i}" for i in range(size)]
+        return names
+
+    def camera_specs(self) -> tuple[CameraSpec, ...]:
+        """Every camera an image observation has (the task's, then the robot's), whatever this env's obs mode."""
+        return (*self._sensor_cameras(), *self._robot_spec.cameras)
+
+    @property
+    def robot_uid(self) -> str:
+        """The robot variant this env runs (LeRobot's `robot_type`)."""
+        return self._robot_spec.uid
 
     @property
     def camera_names(self) -> tuple[str, ...]:
-        """Cameras in image observations (empty unless obs_mode is rgb or rgbd)."""
+        """Cameras in this env's observations (empty unless obs_mode is rgb or rgbd)."""
         return tuple(self._cameras)
 
     def _observation(self, info: dict):
         if self.obs_mode == "none":
             return np.zeros(0, dtype=np.float32)
-        state = self.state_dict(info)
+        state = self.state_dict()
         if self.obs_mode == "state":
             return flatten_state(state)
         if self.obs_mode == "state_dict":

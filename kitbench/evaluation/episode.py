@@ -10,7 +10,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from kitbench.evaluation.outcomes import GraspWatch, criteria, failure_category
+from kitbench.envs.grasp import GraspHistory
+from kitbench.evaluation.outcomes import criteria, failure_category, watch_grasp
 
 
 @dataclass
@@ -22,7 +23,7 @@ class EpisodeResult:
     episode_return: float
     criteria: dict[str, bool]  # at the last step
     failure: str | None  # category, None for a success
-    config: dict = field(default_factory=dict)  # kit, shape, episode index (AssemblingKits)
+    config: dict = field(default_factory=dict)  # the task's episode_config()
     final: dict = field(default_factory=dict)  # the last step's task measurements (errors, tilt, ...)
 
     def to_dict(self) -> dict:
@@ -38,12 +39,12 @@ def _scalars(info: dict) -> dict:
     return out
 
 
-def evaluate_episode(env, policy, seed: int, task: str, frames: list | None = None) -> EpisodeResult:
+def evaluate_episode(env, policy, seed: int, frames: list | None = None) -> EpisodeResult:
     """Run `policy` on `seed` to the end; if `frames` is a list, append a rendered frame per state to it."""
     u = env.unwrapped
     obs, info = env.reset(seed=seed)
     policy.reset(env, seed, obs, info)
-    watch = GraspWatch()
+    history = GraspHistory()
     if frames is not None:
         frames.append(env.render())
     total, steps, first = 0.0, 0, None
@@ -51,7 +52,7 @@ def evaluate_episode(env, policy, seed: int, task: str, frames: list | None = No
         obs, reward, terminated, truncated, info = env.step(policy.act(obs))
         steps += 1
         total += float(reward)
-        watch.update(u)
+        watch_grasp(env, history)
         if frames is not None:
             frames.append(env.render())
         if first is None and info["success"]:
@@ -59,6 +60,13 @@ def evaluate_episode(env, policy, seed: int, task: str, frames: list | None = No
         if terminated or truncated:
             break
     return EpisodeResult(
-        seed=seed, success=first is not None, length=steps, steps_to_success=first, episode_return=total,
-        criteria=criteria(task, info), failure=None if first is not None else failure_category(task, info, watch),
-        config=u.episode_config(), final=_scalars(info))
+        seed=seed,
+        success=first is not None,
+        length=steps,
+        steps_to_success=first,
+        episode_return=total,
+        criteria=criteria(env, info),
+        failure=None if first is not None else failure_category(env, info, history),
+        config=u.episode_config(),
+        final=_scalars(info),
+    )

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from kitbench.evaluation.report import group_table
+
 
 def _figure(width: float = 6.0, height: float = 3.6):
     import matplotlib
@@ -19,13 +21,16 @@ def _rates(ax, labels, rows):
     low = [max(0.0, r["rate"] - r["ci95"][0]) for r in rows]  # the interval's ends carry rounding error
     high = [max(0.0, r["ci95"][1] - r["rate"]) for r in rows]
     ax.bar(range(len(rows)), rates, yerr=[low, high], capsize=3, color="#4c72b0")
-    ax.set_xticks(range(len(rows)), labels, rotation=45 if len(rows) > 6 else 0, ha="right" if len(rows) > 6 else "center")
+    ax.set_xticks(
+        range(len(rows)), labels, rotation=45 if len(rows) > 6 else 0, ha="right" if len(rows) > 6 else "center"
+    )
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("rate (95% Wilson CI)")
 
 
 def write_plots(report: dict, folder: Path) -> list[Path]:
-    """One PNG per view: success and criteria, episode length, return, time to success, per shape."""
+    """One PNG per view: success and criteria, episode length, return, time to success, per group (the task's
+    `report_groups`, e.g. per shape)."""
     folder.mkdir(parents=True, exist_ok=True)
     title = f"{report['task']} · {report['policy']} · {report['episodes']} episodes"
     written = []
@@ -37,27 +42,36 @@ def write_plots(report: dict, folder: Path) -> list[Path]:
     written.append(_save(plt, fig, folder / "success.png"))
 
     episodes = report["per_episode"]
-    for name, key, xlabel in (("episode_length", "length", "control steps"),
-                              ("return", "episode_return", "return"),
-                              ("steps_to_success", "steps_to_success", "control steps to first success")):
+    for name, key, xlabel in (
+        ("episode_length", "length", "control steps"),
+        ("return", "episode_return", "return"),
+        ("steps_to_success", "steps_to_success", "control steps to first success"),
+    ):
         plt, fig, ax = _figure()
         ok = [e[key] for e in episodes if e["success"] and e[key] is not None]
         bad = [e[key] for e in episodes if not e["success"] and e[key] is not None]
         data, labels = [d for d in (ok, bad) if d], [lbl for d, lbl in ((ok, "success"), (bad, "failure")) if d]
         if data:
-            ax.hist(data, bins=20, stacked=True, label=labels, color=["#55a868", "#c44e52"][: len(data)]
-                    if labels[0] == "success" else ["#c44e52"])
+            ax.hist(
+                data,
+                bins=20,
+                stacked=True,
+                label=labels,
+                color=["#55a868", "#c44e52"][: len(data)] if labels[0] == "success" else ["#c44e52"],
+            )
             ax.legend()
         ax.set_xlabel(xlabel)
         ax.set_ylabel("episodes")
         ax.set_title(title, fontsize=9)
         written.append(_save(plt, fig, folder / f"{name}.png"))
 
-    if "per_shape" in report:
+    table = group_table(report)
+    if table is not None:
+        id_key, name, rows = table
         plt, fig, ax = _figure(8.0, 3.8)
-        _rates(ax, [f"{r['shape_id']} {r['shape']}" for r in report["per_shape"]], report["per_shape"])
-        ax.set_title(f"success by shape · {title}", fontsize=9)
-        written.append(_save(plt, fig, folder / "per_shape.png"))
+        _rates(ax, [f"{r[id_key]} {r[name]}" for r in rows], rows)
+        ax.set_title(f"success by {name} · {title}", fontsize=9)
+        written.append(_save(plt, fig, folder / f"per_{name}.png"))
     return written
 
 

@@ -11,21 +11,22 @@ from pathlib import Path
 
 import kitbench
 from kitbench.evaluation.episode import EpisodeResult
-from kitbench.evaluation.outcomes import FAILURE_CATEGORIES
 from kitbench.evaluation.stats import describe, rate
 from kitbench.evaluation.suite import Suite
+from kitbench.registration import task_entry
 
 REPORT_VERSION = 1
 
 
-def _per_shape(results: list[EpisodeResult]) -> list[dict]:
-    groups: dict[int, list[EpisodeResult]] = {}
+def _per_group(results: list[EpisodeResult], id_key: str, name_key: str) -> list[dict]:
+    """Success and criteria rates per value of `episode_config()[id_key]` (the task's `report_groups`)."""
+    groups: dict = {}
     for r in results:
-        groups.setdefault(r.config["shape_id"], []).append(r)
+        groups.setdefault(r.config[id_key], []).append(r)
     rows = []
-    for shape_id in sorted(groups):
-        rs = groups[shape_id]
-        row = {"shape_id": shape_id, "shape": rs[0].config["shape"], **rate(sum(r.success for r in rs), len(rs))}
+    for group_id in sorted(groups):
+        rs = groups[group_id]
+        row = {id_key: group_id, name_key: rs[0].config[name_key], **rate(sum(r.success for r in rs), len(rs))}
         for name in rs[0].criteria:
             row[name] = sum(r.criteria[name] for r in rs) / len(rs)
         rows.append(row)
@@ -36,7 +37,8 @@ def build_report(suite: Suite, policy: str, results: list[EpisodeResult], contro
     n = len(results)
     successes = [r for r in results if r.success]
     names = list(results[0].criteria) if results else []
-    categories = {c: 0 for c in FAILURE_CATEGORIES[suite.task]}
+    env_class = task_entry(suite.task).env_class
+    categories = dict.fromkeys(env_class.failure_categories, 0)
     for r in results:
         if r.failure is not None:
             categories[r.failure] = categories.get(r.failure, 0) + 1
@@ -51,16 +53,28 @@ def build_report(suite: Suite, policy: str, results: list[EpisodeResult], contro
         "criteria": {name: rate(sum(r.criteria[name] for r in results), n) for name in names},
         "episode_length": describe(r.length for r in results),
         "steps_to_success": describe(r.steps_to_success for r in successes),
-        "seconds_to_success": describe(r.steps_to_success * control_timestep for r in successes),
+        "seconds_to_success": describe((r.steps_to_success or 0) * control_timestep for r in successes),
         "return": describe(r.episode_return for r in results),
-        "return_by_outcome": {"success": describe(r.episode_return for r in successes),
-                              "failure": describe(r.episode_return for r in results if not r.success)},
+        "return_by_outcome": {
+            "success": describe(r.episode_return for r in successes),
+            "failure": describe(r.episode_return for r in results if not r.success),
+        },
         "failure_categories": categories,
         "per_episode": [r.to_dict() for r in results],
     }
-    if suite.task == "AssemblingKits-v1":
-        report["per_shape"] = _per_shape(results)
+    if env_class.report_groups is not None:
+        id_key, name_key = env_class.report_groups
+        report["report_groups"] = [id_key, name_key]
+        report[f"per_{name_key}"] = _per_group(results, id_key, name_key)
     return report
+
+
+def group_table(report: dict) -> tuple[str, str, list[dict]] | None:
+    """The report's breakdown by the task's `report_groups` (id key, name key, rows), if it has one."""
+    if "report_groups" not in report:
+        return None
+    id_key, name_key = report["report_groups"]
+    return id_key, name_key, report[f"per_{name_key}"]
 
 
 def without_timing(report: dict) -> dict:
@@ -82,8 +96,10 @@ def _pct(r: dict) -> str:
 def _dist_row(name: str, d: dict | None, unit: str = "") -> str:
     if d is None:
         return f"| {name} | – | – | – | – | – | – |"
-    return (f"| {name} | {d['n']} | {d['mean']:.2f}{unit} | {d['median']:.2f}{unit} | {d['p10']:.2f}{unit} | "
-            f"{d['p90']:.2f}{unit} | {d['min']:.2f}–{d['max']:.2f}{unit} |")
+    return (
+        f"| {name} | {d['n']} | {d['mean']:.2f}{unit} | {d['median']:.2f}{unit} | {d['p10']:.2f}{unit} | "
+        f"{d['p90']:.2f}{unit} | {d['min']:.2f}–{d['max']:.2f}{unit} |"
+    )
 
 
 def markdown(report: dict) -> str:
@@ -93,8 +109,9 @@ def markdown(report: dict) -> str:
         "",
         f"Suite `{suite['name']}`"
         + (f" ({suite['source']})" if suite.get("source") else "")
-        + f": {report['episodes']} episodes, seeds {suite['seeds'][0]}…{suite['seeds'][-1]}, obs `{suite['obs_mode']}`, "
-        f"control `{suite['control_mode']}`, reward `{suite['reward_mode']}`. kitbench {report['kitbench_version']}.",
+        + f": {report['episodes']} episodes, seeds {suite['seeds'][0]}…{suite['seeds'][-1]}, "
+        f"obs `{suite['obs_mode']}`, control `{suite['control_mode']}`, reward `{suite['reward_mode']}`. "
+        f"kitbench {report['kitbench_version']}.",
         "",
         f"**Success: {_pct(report['success'])}**",
         "",
@@ -121,28 +138,49 @@ def markdown(report: dict) -> str:
         "|---|---|",
         *[f"| {c} | {n} |" for c, n in report["failure_categories"].items()],
     ]
-    if "per_shape" in report:
+    table = group_table(report)
+    if table is not None:
+        id_key, name, rows = table
         crit = list(report["criteria"])
-        lines += ["", "## Per shape", "", "| id | shape | episodes | success | 95% CI | " + " | ".join(crit) + " |",
-                  "|---|---|---|---|---|" + "---|" * len(crit)]
-        for row in report["per_shape"]:
+        lines += [
+            "",
+            f"## Per {name}",
+            "",
+            f"| id | {name} | episodes | success | 95% CI | " + " | ".join(crit) + " |",
+            "|---|---|---|---|---|" + "---|" * len(crit),
+        ]
+        for row in rows:
             lo, hi = row["ci95"]
-            lines.append(f"| {row['shape_id']} | {row['shape']} | {row['episodes']} | {row['rate']:.0%} | "
-                         f"{lo:.0%}–{hi:.0%} | " + " | ".join(f"{row[c]:.0%}" for c in crit) + " |")
+            lines.append(
+                f"| {row[id_key]} | {row[name]} | {row['episodes']} | {row['rate']:.0%} | "
+                f"{lo:.0%}–{hi:.0%} | " + " | ".join(f"{row[c]:.0%}" for c in crit) + " |"
+            )
     output = report.get("output", {})
     if output.get("videos"):
         lines += ["", "## Videos", ""]
-        lines += [f"- seed {v['seed']} ({'success' if v['success'] else 'failure: ' + str(v['failure'])}): "
-                  f"[{v['path']}]({v['path']})" for v in output["videos"]]
+        lines += [
+            f"- seed {v['seed']} ({'success' if v['success'] else 'failure: ' + str(v['failure'])}): "
+            f"[{v['path']}]({v['path']})"
+            for v in output["videos"]
+        ]
     if output.get("plots"):
         lines += ["", "## Plots", ""]
         lines += [f"![{Path(p).stem}]({p})" for p in output["plots"]]
     timing = report.get("timing")
     if timing:
-        lines += ["", f"Evaluated in {timing['seconds']:.1f} s with {timing['workers']} worker(s) "
-                      f"({timing['episodes_per_minute']:.1f} episodes/min)."]
+        lines += [
+            "",
+            (
+                f"Evaluated in {timing['seconds']:.1f} s with {timing['workers']} worker(s) "
+                f"({timing['episodes_per_minute']:.1f} episodes/min)."
+            ),
+        ]
     failures = [e for e in report["per_episode"] if not e["success"]]
     if failures:
-        lines += ["", "## Failed seeds", "", ", ".join(f"{e['seed']} ({e['failure']})" for e in failures[:50])
-                  + (" …" if len(failures) > 50 else "")]
+        lines += [
+            "",
+            "## Failed seeds",
+            "",
+            ", ".join(f"{e['seed']} ({e['failure']})" for e in failures[:50]) + (" …" if len(failures) > 50 else ""),
+        ]
     return "\n".join(lines) + "\n"

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from kitbench.errors import KitbenchError
 from kitbench.evaluation.episode import EpisodeResult, evaluate_episode
 from kitbench.evaluation.suite import Suite
 
@@ -38,21 +39,26 @@ def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite
     needs = policy.requirements() if hasattr(policy, "requirements") else {}
     task = needs.get("task")
     if task is not None and task != suite.task:
-        raise ValueError(f"policy {policy.name} was recorded on {task} but this evaluation runs {suite.task}; "
-                         f"evaluate it with --task {task}")
+        raise KitbenchError(
+            f"policy {policy.name} was recorded on {task} but this evaluation runs {suite.task}; "
+            f"evaluate it with --task {task}"
+        )
     changes = {}
     control = needs.get("control_mode")
     if control is not None and control != suite.control_mode:
         if "control_mode" in explicit or suite.source is not None:
             where = "the command line" if "control_mode" in explicit else f"suite {suite.source}"
-            raise ValueError(f"policy {policy.name} was trained on {control} actions but {where} asks for "
-                             f"{suite.control_mode}; evaluate it with --control-mode {control}")
+            raise KitbenchError(
+                f"policy {policy.name} was trained on {control} actions but {where} asks for "
+                f"{suite.control_mode}; evaluate it with --control-mode {control}"
+            )
         changes["control_mode"] = control
     obs = needs.get("obs_mode")
     if obs is not None and obs != suite.obs_mode:
         if "obs_mode" in explicit and suite.obs_mode == "state":
-            raise ValueError(f"policy {policy.name} needs camera images (obs_mode {obs}); --obs-mode "
-                             f"{suite.obs_mode} has none")
+            raise KitbenchError(
+                f"policy {policy.name} needs camera images (obs_mode {obs}); --obs-mode {suite.obs_mode} has none"
+            )
         if suite.obs_mode == "state":
             changes["obs_mode"] = obs
     return replace(suite, **changes) if changes else suite
@@ -61,8 +67,13 @@ def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite
 def _make_env(suite: Suite, render: bool = False):
     from kitbench.registration import make_env
 
-    return make_env(suite.task, obs_mode=suite.obs_mode, control_mode=suite.control_mode,
-                    reward_mode=suite.reward_mode, render_mode="rgb_array" if render else None)
+    return make_env(
+        suite.task,
+        obs_mode=suite.obs_mode,
+        control_mode=suite.control_mode,
+        reward_mode=suite.reward_mode,
+        render_mode="rgb_array" if render else None,
+    )
 
 
 # -- workers ---------------------------------------------------------------------------------------
@@ -78,7 +89,7 @@ def _worker_init(suite: Suite, policy_spec: str, single_thread: bool) -> None:
 
 
 def _worker_episode(seed: int) -> EpisodeResult:
-    return evaluate_episode(_WORKER["env"], _WORKER["policy"], seed, _WORKER["suite"].task)
+    return evaluate_episode(_WORKER["env"], _WORKER["policy"], seed)
 
 
 def _worker_video(job: tuple[int, str, int]) -> EpisodeResult:
@@ -88,7 +99,7 @@ def _worker_video(job: tuple[int, str, int]) -> EpisodeResult:
     if _WORKER["video_env"] is None:
         _WORKER["video_env"] = _make_env(_WORKER["suite"], render=True)
     frames: list = []
-    result = evaluate_episode(_WORKER["video_env"], _WORKER["policy"], seed, _WORKER["suite"].task, frames)
+    result = evaluate_episode(_WORKER["video_env"], _WORKER["policy"], seed, frames)
     write_mp4(Path(path), frames, fps)
     return result
 
@@ -142,9 +153,9 @@ def validate(config: EvalConfig):
     from kitbench.policies.registry import make_policy
 
     if not isinstance(config.workers, int) or config.workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {config.workers!r}")
+        raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
     if not isinstance(config.videos, int) or config.videos < 0:
-        raise ValueError(f"videos must be a non-negative integer, got {config.videos!r}")
+        raise KitbenchError(f"videos must be a non-negative integer, got {config.videos!r}")
     policy = make_policy(config.policy)
     suite = fit_suite_to_policy(config.suite, policy, config.explicit)
     env = _make_env(suite)
@@ -189,14 +200,26 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             bar.close()
         scored_seconds = time.monotonic() - start
         chosen = pick_video_seeds(results, config.videos)
-        jobs = [(r.seed, str(out / VIDEOS_DIR / f"seed{r.seed}_{'success' if r.success else 'failure'}.mp4"), fps)
-                for r in chosen]
+        jobs = [
+            (r.seed, str(out / VIDEOS_DIR / f"seed{r.seed}_{'success' if r.success else 'failure'}.mp4"), fps)
+            for r in chosen
+        ]
         videos = []
         for scored, replayed, (_, path, _) in zip(chosen, runner.map(_worker_video, jobs), jobs, strict=True):
             same = (replayed.success, replayed.length, replayed.episode_return) == (
-                scored.success, scored.length, scored.episode_return)
-            videos.append({"seed": scored.seed, "success": scored.success, "failure": scored.failure,
-                           "path": str(Path(path).relative_to(out)), "matches_scored_episode": same})
+                scored.success,
+                scored.length,
+                scored.episode_return,
+            )
+            videos.append(
+                {
+                    "seed": scored.seed,
+                    "success": scored.success,
+                    "failure": scored.failure,
+                    "path": str(Path(path).relative_to(out)),
+                    "matches_scored_episode": same,
+                }
+            )
     finally:
         if bar is not None:
             bar.close()
@@ -206,8 +229,12 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     report["output"] = {"videos": videos}
     report["output"]["plots"] = [str(p.relative_to(out)) for p in write_plots(report, out / PLOTS_DIR)]
     seconds = time.monotonic() - start
-    report["timing"] = {"seconds": seconds, "scoring_seconds": scored_seconds, "workers": runner.workers,
-                        "episodes_per_minute": 60.0 * len(results) / max(scored_seconds, 1e-9)}
+    report["timing"] = {
+        "seconds": seconds,
+        "scoring_seconds": scored_seconds,
+        "workers": runner.workers,
+        "episodes_per_minute": 60.0 * len(results) / max(scored_seconds, 1e-9),
+    }
     (out / REPORT_MD).write_text(markdown(report))
     write_json(report, out / REPORT_JSON)  # last: a report.json means a complete evaluation
     return report
@@ -215,13 +242,19 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
 
 def summary_lines(report: dict, out: Path) -> list[str]:
     s = report["success"]
-    lines = [f"{report['task']} · {report['policy']} · {report['episodes']} episodes: success {s['rate']:.1%} "
-             f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%})"]
+    lines = [
+        (
+            f"{report['task']} · {report['policy']} · {report['episodes']} episodes: success {s['rate']:.1%} "
+            f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%})"
+        )
+    ]
     for name, r in report["criteria"].items():
         lines.append(f"  {name}: {r['rate']:.1%}")
     failures = {k: v for k, v in report["failure_categories"].items() if v}
     if failures:
         lines.append("  failures: " + ", ".join(f"{k} {v}" for k, v in failures.items()))
-    lines.append(f"  report: {out / REPORT_MD} (+ {REPORT_JSON}, {len(report['output']['plots'])} plots, "
-                 f"{len(report['output']['videos'])} videos)")
+    lines.append(
+        f"  report: {out / REPORT_MD} (+ {REPORT_JSON}, {len(report['output']['plots'])} plots, "
+        f"{len(report['output']['videos'])} videos)"
+    )
     return lines

@@ -23,8 +23,12 @@ def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float,
 
 def rate(successes: int, trials: int) -> dict:
     lo, hi = wilson_interval(successes, trials)
-    return {"count": int(successes), "episodes": int(trials), "rate": successes / trials if trials else 0.0,
-            "ci95": [lo, hi]}
+    return {
+        "count": int(successes),
+        "episodes": int(trials),
+        "rate": successes / trials if trials else 0.0,
+        "ci95": [lo, hi],
+    }
 
 
 def describe(values) -> dict | None:
@@ -33,6 +37,15 @@ def describe(values) -> dict | None:
     if v.size == 0:
         return None
     q = np.quantile(v, [0.1, 0.25, 0.5, 0.75, 0.9])
-    return {"n": int(v.size), "mean": float(v.mean()), "std": float(v.std()), "min": float(v.min()),
-            "p10": float(q[0]), "p25": float(q[1]), "median": float(q[2]), "p75": float(q[3]),
-            "p90": float(q[4]), "max": float(v.max())}
+    return {
+        "n": int(v.size),
+        "mean": float(v.mean()),
+        "std": float(v.std()),
+        "min": float(v.min()),
+        "p10": float(q[0]),
+        "p25": float(q[1]),
+        "median": float(q[2]),
+        "p75": float(q[3]),
+        "p90": float(q[4]),
+        "max": float(v.max()),
+    }

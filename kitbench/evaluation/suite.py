@@ -13,7 +13,8 @@ from pathlib import Path
 
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.modes import REWARD_MODES
-from kitbench.registration import TASKS
+from kitbench.errors import KitbenchError
+from kitbench.registration import TASKS, task_entry
 
 OBS_MODES_EVALUABLE = ("state", "rgb", "rgbd")
 SUITE_KEYS = ("name", "task", "seeds", "obs_mode", "control_mode", "reward_mode", "description")
@@ -33,18 +34,20 @@ class Suite:
 
     def __post_init__(self):
         if self.task not in TASKS:
-            raise ValueError(f"{self._where()}unknown task {self.task!r}; valid choices: {', '.join(TASKS)}")
-        for key, value, valid in (("obs_mode", self.obs_mode, OBS_MODES_EVALUABLE),
-                                  ("control_mode", self.control_mode, CONTROL_MODES),
-                                  ("reward_mode", self.reward_mode, REWARD_MODES)):
+            raise KitbenchError(f"{self._where()}unknown task {self.task!r}; valid choices: {', '.join(TASKS)}")
+        for key, value, valid in (
+            ("obs_mode", self.obs_mode, OBS_MODES_EVALUABLE),
+            ("control_mode", self.control_mode, CONTROL_MODES),
+            ("reward_mode", self.reward_mode, REWARD_MODES),
+        ):
             if value not in valid:
-                raise ValueError(f"{self._where()}unknown {key} {value!r}; valid choices: {', '.join(valid)}")
+                raise KitbenchError(f"{self._where()}unknown {key} {value!r}; valid choices: {', '.join(valid)}")
         if not self.seeds:
-            raise ValueError(f"{self._where()}no seeds")
+            raise KitbenchError(f"{self._where()}no seeds")
         if len(set(self.seeds)) != len(self.seeds):
-            raise ValueError(f"{self._where()}seeds repeat")
+            raise KitbenchError(f"{self._where()}seeds repeat")
         if any(not isinstance(s, int) or isinstance(s, bool) or s < 0 for s in self.seeds):
-            raise ValueError(f"{self._where()}seeds must be non-negative integers")
+            raise KitbenchError(f"{self._where()}seeds must be non-negative integers")
 
     def _where(self) -> str:
         return f"suite {self.source}: " if self.source else ""
@@ -52,9 +55,9 @@ class Suite:
     def first(self, episodes: int) -> Suite:
         """The suite cut to its first `episodes` seeds."""
         if not isinstance(episodes, int) or episodes < 1:
-            raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+            raise KitbenchError(f"episodes must be a positive integer, got {episodes!r}")
         if episodes > len(self.seeds):
-            raise ValueError(f"{self._where()}has {len(self.seeds)} seeds; cannot run {episodes} episodes")
+            raise KitbenchError(f"{self._where()}has {len(self.seeds)} seeds; cannot run {episodes} episodes")
         return replace(self, seeds=self.seeds[:episodes])
 
     def with_modes(self, **modes) -> Suite:
@@ -62,9 +65,16 @@ class Suite:
         return replace(self, **{k: v for k, v in modes.items() if v is not None})
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "task": self.task, "seeds": list(self.seeds), "obs_mode": self.obs_mode,
-                "control_mode": self.control_mode, "reward_mode": self.reward_mode,
-                "description": self.description, "source": self.source}
+        return {
+            "name": self.name,
+            "task": self.task,
+            "seeds": list(self.seeds),
+            "obs_mode": self.obs_mode,
+            "control_mode": self.control_mode,
+            "reward_mode": self.reward_mode,
+            "description": self.description,
+            "source": self.source,
+        }
 
 
 def seed_range(start: int, count: int) -> tuple[int, ...]:
@@ -74,11 +84,15 @@ def seed_range(start: int, count: int) -> tuple[int, ...]:
 def adhoc_suite(task: str, episodes: int, seed: int = DEFAULT_FIRST_SEED, **modes) -> Suite:
     """The suite `--task T --episodes N [--seed S]` means: N consecutive seeds from S."""
     if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+        raise KitbenchError(f"episodes must be a positive integer, got {episodes!r}")
     if seed < 0:
-        raise ValueError(f"seed must be non-negative, got {seed}")
-    return Suite(name=f"{task}-seeds-{seed}-{seed + episodes - 1}", task=task, seeds=seed_range(seed, episodes),
-                 **{k: v for k, v in modes.items() if v is not None})
+        raise KitbenchError(f"seed must be non-negative, got {seed}")
+    return Suite(
+        name=f"{task}-seeds-{seed}-{seed + episodes - 1}",
+        task=task,
+        seeds=seed_range(seed, episodes),
+        **{k: v for k, v in modes.items() if v is not None},
+    )
 
 
 def _parse_seeds(value, path: Path) -> tuple[int, ...]:
@@ -86,25 +100,43 @@ def _parse_seeds(value, path: Path) -> tuple[int, ...]:
         return tuple(value)
     if isinstance(value, dict) and set(value) == {"start", "count"}:
         return seed_range(int(value["start"]), int(value["count"]))
-    raise ValueError(f"suite {path}: seeds must be a list of integers or {{ start = S, count = N }}, got {value!r}")
+    raise KitbenchError(f"suite {path}: seeds must be a list of integers or {{ start = S, count = N }}, got {value!r}")
 
 
 def load_suite(path: str | Path) -> Suite:
     """Read a suite file (keys at top level or under `[suite]`); errors name the file and the key."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"suite {path} does not exist")
+        raise KitbenchError(f"suite {path} does not exist")
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"suite {path}: invalid TOML: {exc}") from exc
+        raise KitbenchError(f"suite {path}: invalid TOML: {exc}") from exc
     data = data.get("suite", data)
     unknown = sorted(set(data) - set(SUITE_KEYS))
     if unknown:
-        raise ValueError(f"suite {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(SUITE_KEYS)}")
+        raise KitbenchError(f"suite {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(SUITE_KEYS)}")
     for key in ("task", "seeds"):
         if key not in data:
-            raise ValueError(f"suite {path}: missing required key {key!r}")
+            raise KitbenchError(f"suite {path}: missing required key {key!r}")
     data["seeds"] = _parse_seeds(data["seeds"], path)
     data.setdefault("name", path.stem)
     return Suite(**data, source=str(path))
+
+
+def shipped_suites(task: str, roots: tuple[Path, ...]) -> list[Path]:
+    """The suite files under `<root>/eval/suites/` for `task`, the first root that has any (file name order)."""
+    task_entry(task)
+    for root in roots:
+        folder = Path(root) / "eval" / "suites"
+        found = []
+        for path in sorted(folder.glob("*.toml")):
+            try:
+                data = tomllib.loads(path.read_text())
+            except (OSError, tomllib.TOMLDecodeError):
+                continue
+            if data.get("suite", data).get("task") == task:
+                found.append(path)
+        if found:
+            return found
+    return []

@@ -13,6 +13,59 @@ importing the package stays cheap until geometry is actually needed.
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    # The same names, imported eagerly for type checkers only: a module-level __getattr__ alone would make
+    # every re-exported name Any to mypy. tests/test_kit_shapes.py holds this list equal to _EXPORTS.
+    from kitbench.kits.board import (
+        BOARD_MARGIN as BOARD_MARGIN,
+        BOARD_SIZE as BOARD_SIZE,
+        BOARD_TOP as BOARD_TOP,
+        DEFAULT_CLEARANCE as DEFAULT_CLEARANCE,
+        POCKET_DEPTH as POCKET_DEPTH,
+        SLOT_FLOOR as SLOT_FLOOR,
+        BoardGeometry as BoardGeometry,
+        board_geometry as board_geometry,
+        layout_problems as layout_problems,
+        placed_slot_polygons as placed_slot_polygons,
+    )
+    from kitbench.kits.convex import (
+        convex_decompose as convex_decompose,
+        extrude_convex as extrude_convex,
+        extrude_mesh as extrude_mesh,
+        is_convex_polygon as is_convex_polygon,
+        mesh_volume as mesh_volume,
+    )
+    from kitbench.kits.episodes import (
+        FORMAT as FORMAT,
+        PALETTE as PALETTE,
+        VERSION as VERSION,
+        BoardSpec as BoardSpec,
+        Episode as Episode,
+        EpisodeFileError as EpisodeFileError,
+        EpisodeSet as EpisodeSet,
+        Slot as Slot,
+        generate_episodes as generate_episodes,
+        load_episodes as load_episodes,
+        validate_episodes as validate_episodes,
+        write_default_episodes as write_default_episodes,
+    )
+    from kitbench.kits.shapes import (
+        DEFAULT_PAD_WIDTH as DEFAULT_PAD_WIDTH,
+        NUM_SHAPES as NUM_SHAPES,
+        SHAPE_HEIGHT as SHAPE_HEIGHT,
+        SHAPE_NAMES as SHAPE_NAMES,
+        SYMMETRY as SYMMETRY,
+        ShapeGeometry as ShapeGeometry,
+        grasp_width as grasp_width,
+        narrowest_grasp as narrowest_grasp,
+        place as place,
+        rotational_symmetry_residual as rotational_symmetry_residual,
+        shape_geometry as shape_geometry,
+        shape_outline as shape_outline,
+        slot_outline as slot_outline,
+    )
 
 _EXPORTS: dict[str, str] = {
     **dict.fromkeys(
@@ -52,8 +105,7 @@ _EXPORTS: dict[str, str] = {
     ),
     **dict.fromkeys(
         [
-            "FINGER_PAD_WIDTH",
-            "MAX_GRASP_WIDTH",
+            "DEFAULT_PAD_WIDTH",
             "NUM_SHAPES",
             "SHAPE_HEIGHT",
             "SHAPE_NAMES",
@@ -74,11 +126,11 @@ _EXPORTS: dict[str, str] = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
     globals()[name] = value
     return value
 

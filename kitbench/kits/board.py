@@ -11,16 +11,17 @@ Kit frame: board centred at xy (0, 0), table top at z = 0, +x away from the robo
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Iterable, Sequence
 
 import numpy as np
 from shapely.geometry import MultiPolygon, Polygon, box
 from shapely.ops import unary_union
 
-from .convex import box_mesh, convex_decompose, extrude_convex, extrude_mesh, merge_meshes
-from .shapes import place, slot_outline
+from kitbench.errors import KitbenchError
+from kitbench.kits.convex import box_mesh, convex_decompose, extrude_convex, extrude_mesh, merge_meshes
+from kitbench.kits.shapes import place, slot_outline
 
 BOARD_SIZE: tuple[float, float] = (0.20, 0.28)
 BOARD_TOP = 0.02
@@ -124,12 +125,12 @@ def board_geometry(
     pocket layer would then not be what the episode describes.
     """
     if not 0 < pocket_depth < top:
-        raise ValueError(f"need 0 < pocket_depth < top, got pocket_depth={pocket_depth}, top={top}")
+        raise KitbenchError(f"need 0 < pocket_depth < top, got pocket_depth={pocket_depth}, top={top}")
     slots = tuple((int(s), float(x), float(y), float(w)) for s, x, y, w in slots)
     polys = placed_slot_polygons(slots, clearance)
     problems = layout_problems(polys, size)
     if problems:
-        raise ValueError("invalid slot layout: " + "; ".join(f"slot {i}: {m}" for i, m in problems))
+        raise KitbenchError("invalid slot layout: " + "; ".join(f"slot {i}: {m}" for i, m in problems))
     floor = top - pocket_depth
     sx, sy = float(size[0]), float(size[1])
     rect = board_rectangle(size)

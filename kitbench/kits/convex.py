@@ -140,9 +140,9 @@ def hertel_mehlhorn(verts: np.ndarray, tris: np.ndarray) -> list[list[int]]:
     """
     pieces: dict[int, list[int]] = {i: [int(v) for v in t] for i, t in enumerate(tris)}
     owner: dict[tuple[int, int], int] = {}
-    for pid, piece in pieces.items():
+    for tri_id, tri in pieces.items():
         for k in range(3):
-            owner[(piece[k], piece[(k + 1) % 3])] = pid
+            owner[(tri[k], tri[(k + 1) % 3])] = tri_id
     diagonals = [(a, b) for (a, b) in owner if a < b and (b, a) in owner]
     diagonals.sort(key=lambda e: (-float(np.linalg.norm(verts[e[0]] - verts[e[1]])), e))
     scale = float(np.ptp(verts, axis=0).max()) if len(verts) else 1.0
@@ -182,8 +182,7 @@ def convex_decompose(geom: Polygon | MultiPolygon) -> list[np.ndarray]:
             continue
         verts, tris = triangulate(poly)
         tol = _COLLINEAR_RTOL * _polygon_scale(poly) ** 2
-        for piece in hertel_mehlhorn(verts, tris):
-            out.append(_drop_straight_vertices(verts[piece], tol))
+        out.extend(_drop_straight_vertices(verts[piece], tol) for piece in hertel_mehlhorn(verts, tris))
     return out
 
 

@@ -15,14 +15,16 @@ from __future__ import annotations
 import json
 import math
 import sys
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, NoReturn
 
 import numpy as np
 
-from .board import (
+from kitbench.errors import KitbenchError
+from kitbench.kits.board import (
     BOARD_MARGIN,
     BOARD_SIZE,
     BOARD_TOP,
@@ -35,7 +37,7 @@ from .board import (
     layout_problems,
     placed_slot_polygons,
 )
-from .shapes import NUM_SHAPES
+from kitbench.kits.shapes import NUM_SHAPES
 
 FORMAT = "kitbench/assembling-kits-episodes"
 VERSION = 1
@@ -75,7 +77,7 @@ MIN_SLOT_GAP = 0.004
 _MAX_LAYOUT_ATTEMPTS = 200
 
 
-class EpisodeFileError(ValueError):
+class EpisodeFileError(KitbenchError):
     """An episode file (or dict) that does not follow the schema; the message names file and field."""
 
 
@@ -149,7 +151,7 @@ class Episode:
         """Pose of a shape seated in any slot (for the obj_in_place objects)."""
         return seated_pose(self.slots[slot_index], floor)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "kit_id": self.kit_id,
             "slots": [{"shape_id": s.shape_id, "pos": list(s.pos), "yaw": s.yaw} for s in self.slots],
@@ -186,7 +188,7 @@ class EpisodeSet:
         b = self.board
         return board_geometry(self.episodes[i].slot_poses(), b.clearance, b.size, b.top, b.pocket_depth)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         b = self.board
         return {
             "format": FORMAT,
@@ -207,23 +209,19 @@ def _slot_positions(rng: np.random.Generator) -> list[tuple[float, float]]:
     return row3 + row2
 
 
-def _random_layout(rng: np.random.Generator, shapes: Sequence[int], clearance: float) -> list[dict]:
+def _random_layout(rng: np.random.Generator, shapes: Sequence[int], clearance: float) -> list[dict[str, Any]]:
     """Jittered template positions and uniform yaws, retried until the layout is valid after rounding."""
     centres = _slot_positions(rng)
     for _ in range(_MAX_LAYOUT_ATTEMPTS):
         jitter = rng.uniform(-POSITION_JITTER, POSITION_JITTER, size=(len(shapes), 2))
         yaws = rng.uniform(-math.pi, math.pi, size=len(shapes))
-        slots = [
-            {
-                "shape_id": int(sid),
-                "pos": [_r(cx + jx), _r(cy + jy)],
-                "yaw": _r(yaw),
-            }
-            for sid, (cx, cy), (jx, jy), yaw in zip(shapes, centres, jitter, yaws)
+        poses: list[SlotPose] = [
+            (int(sid), _r(cx + jx), _r(cy + jy), _r(yaw))
+            for sid, (cx, cy), (jx, jy), yaw in zip(shapes, centres, jitter, yaws, strict=True)
         ]
-        polys = placed_slot_polygons([(s["shape_id"], *s["pos"], s["yaw"]) for s in slots], clearance)
+        polys = placed_slot_polygons(poses, clearance)
         if not layout_problems(polys, BOARD_SIZE, margin=BOARD_MARGIN, min_gap=MIN_SLOT_GAP):
-            return slots
+            return [{"shape_id": sid, "pos": [x, y], "yaw": yaw} for sid, x, y, yaw in poses]
     raise RuntimeError(f"no valid layout for shapes {list(shapes)} after {_MAX_LAYOUT_ATTEMPTS} attempts")
 
 
@@ -231,7 +229,7 @@ def _r(x: float) -> float:
     return round(float(x), ROUND_DIGITS)
 
 
-def _generate_episode(rng: np.random.Generator, index: int, clearance: float) -> dict:
+def _generate_episode(rng: np.random.Generator, index: int, clearance: float) -> dict[str, Any]:
     target = index % NUM_SHAPES
     others = rng.choice([s for s in range(NUM_SHAPES) if s != target], size=SLOTS_PER_KIT - 1, replace=False)
     shapes = [target, *(int(s) for s in others)]
@@ -253,7 +251,7 @@ def _generate_episode(rng: np.random.Generator, index: int, clearance: float) ->
     }
 
 
-def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: float = DEFAULT_CLEARANCE) -> dict:
+def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: float = DEFAULT_CLEARANCE) -> dict[str, Any]:
     """Deterministic episode set as a schema-v1 dict.
 
     The target shape cycles through ids 0..19 so every shape is the object to
@@ -261,7 +259,7 @@ def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: float
     consumed in a fixed order, so (n, seed, clearance) fully determine the output.
     """
     if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
+        raise KitbenchError(f"n must be >= 1, got {n}")
     rng = np.random.default_rng(seed)
     return {
         "format": FORMAT,
@@ -272,12 +270,15 @@ def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: float
     }
 
 
-def dumps_episodes(data: dict) -> str:
+def _compact_json(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"), allow_nan=False)
+
+
+def dumps_episodes(data: dict[str, Any]) -> str:
     """Compact JSON with one episode per line, so regenerated files diff readably."""
     head = {k: v for k, v in data.items() if k != "episodes"}
-    compact = dict(separators=(",", ":"), allow_nan=False)
-    lines = [json.dumps(ep, **compact) for ep in data["episodes"]]
-    return json.dumps(head, **compact)[:-1] + ',"episodes":[\n' + ",\n".join(lines) + "\n]}\n"
+    lines = [_compact_json(ep) for ep in data["episodes"]]
+    return _compact_json(head)[:-1] + ',"episodes":[\n' + ",\n".join(lines) + "\n]}\n"
 
 
 def default_episodes_path() -> Path:
@@ -301,23 +302,23 @@ def write_default_episodes(path: str | Path | None = None) -> Path:
 class _Checker:
     """Type checks that raise EpisodeFileError naming the source and the JSON path."""
 
-    def __init__(self, source: str):
+    def __init__(self, source: str) -> None:
         self.source = source
 
-    def fail(self, path: str, msg: str):
+    def fail(self, path: str, msg: str) -> NoReturn:
         raise EpisodeFileError(f"{self.source}: {path}: {msg}" if path else f"{self.source}: {msg}")
 
-    def field(self, obj: dict, key: str, path: str) -> Any:
+    def field(self, obj: dict[str, Any], key: str, path: str) -> Any:
         if key not in obj:
             self.fail(path or "(top level)", f"missing field '{key}'")
         return obj[key]
 
-    def obj(self, value: Any, path: str) -> dict:
+    def obj(self, value: Any, path: str) -> dict[str, Any]:
         if not isinstance(value, dict):
             self.fail(path, f"expected an object, got {_describe(value)}")
         return value
 
-    def list(self, value: Any, path: str, length: int | None = None, min_len: int = 0) -> list:
+    def array(self, value: Any, path: str, length: int | None = None, min_len: int = 0) -> list[Any]:
         if not isinstance(value, list):
             self.fail(path, f"expected a list, got {_describe(value)}")
         if length is not None and len(value) != length:
@@ -326,14 +327,16 @@ class _Checker:
             self.fail(path, f"expected at least {min_len} {'entry' if min_len == 1 else 'entries'}, got {len(value)}")
         return value
 
-    def int(self, value: Any, path: str, lo: int | None = None) -> int:
+    def integer(self, value: Any, path: str, lo: int | None = None) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(path, f"expected an integer, got {_describe(value)}")
         if lo is not None and value < lo:
             self.fail(path, f"expected an integer >= {lo}, got {value}")
         return value
 
-    def num(self, value: Any, path: str, lo: float | None = None, hi: float | None = None, positive=False) -> float:
+    def num(
+        self, value: Any, path: str, lo: float | None = None, hi: float | None = None, positive: bool = False
+    ) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(path, f"expected a number, got {_describe(value)}")
         if not math.isfinite(value):
@@ -344,9 +347,15 @@ class _Checker:
             self.fail(path, f"{value} outside [{lo}, {hi}]")
         return float(value)
 
-    def vec(self, value: Any, path: str, n: int, **kw) -> tuple[float, ...]:
-        items = self.list(value, path, length=n)
-        return tuple(self.num(v, f"{path}[{i}]", **kw) for i, v in enumerate(items))
+    def vec(
+        self, value: Any, path: str, n: int, lo: float | None = None, hi: float | None = None, positive: bool = False
+    ) -> tuple[float, ...]:
+        items = self.array(value, path, length=n)
+        return tuple(self.num(v, f"{path}[{i}]", lo=lo, hi=hi, positive=positive) for i, v in enumerate(items))
+
+    def rgb(self, value: Any, path: str) -> tuple[float, float, float]:
+        r, g, b = self.vec(value, path, 3, lo=0.0, hi=1.0)
+        return r, g, b
 
 
 def _describe(value: Any) -> str:
@@ -356,7 +365,7 @@ def _describe(value: Any) -> str:
     return f"{text} ({type(value).__name__})"
 
 
-def _check_board(c: _Checker, data: dict) -> BoardSpec:
+def _check_board(c: _Checker, data: dict[str, Any]) -> BoardSpec:
     board = c.obj(c.field(data, "board", ""), "board")
     size = c.vec(c.field(board, "size", "board"), "board.size", 2, positive=True)
     top = c.num(c.field(board, "top", "board"), "board.top", positive=True)
@@ -369,13 +378,14 @@ def _check_board(c: _Checker, data: dict) -> BoardSpec:
     return BoardSpec(size=(size[0], size[1]), top=top, pocket_depth=depth, clearance=clearance)
 
 
-def _check_slots(c: _Checker, ep: dict, path: str) -> tuple[Slot, ...]:
-    raw = c.list(c.field(ep, "slots", path), f"{path}.slots", min_len=1)
-    slots, seen = [], {}
+def _check_slots(c: _Checker, ep: dict[str, Any], path: str) -> tuple[Slot, ...]:
+    raw = c.array(c.field(ep, "slots", path), f"{path}.slots", min_len=1)
+    slots: list[Slot] = []
+    seen: dict[int, int] = {}
     for j, s in enumerate(raw):
         sp = f"{path}.slots[{j}]"
         c.obj(s, sp)
-        sid = c.int(c.field(s, "shape_id", sp), f"{sp}.shape_id")
+        sid = c.integer(c.field(s, "shape_id", sp), f"{sp}.shape_id")
         if not 0 <= sid < NUM_SHAPES:
             c.fail(f"{sp}.shape_id", f"unknown shape id {sid} (valid: 0..{NUM_SHAPES - 1})")
         if sid in seen:
@@ -387,16 +397,16 @@ def _check_slots(c: _Checker, ep: dict, path: str) -> tuple[Slot, ...]:
     return tuple(slots)
 
 
-def _check_indices(c: _Checker, ep: dict, path: str, n_slots: int) -> tuple[int, tuple[int, ...]]:
+def _check_indices(c: _Checker, ep: dict[str, Any], path: str, n_slots: int) -> tuple[int, tuple[int, ...]]:
     span = f"(kit has {n_slots} slots: 0..{n_slots - 1})"
-    target = c.int(c.field(ep, "obj_to_place", path), f"{path}.obj_to_place")
+    target = c.integer(c.field(ep, "obj_to_place", path), f"{path}.obj_to_place")
     if not 0 <= target < n_slots:
         c.fail(f"{path}.obj_to_place", f"slot index {target} out of range {span}")
-    in_place = c.list(c.field(ep, "obj_in_place", path), f"{path}.obj_in_place")
+    in_place = c.array(c.field(ep, "obj_in_place", path), f"{path}.obj_in_place")
     seen: set[int] = set()
     for k, v in enumerate(in_place):
         ip = f"{path}.obj_in_place[{k}]"
-        c.int(v, ip)
+        c.integer(v, ip)
         if not 0 <= v < n_slots:
             c.fail(ip, f"slot index {v} out of range {span}")
         if v == target:
@@ -407,18 +417,20 @@ def _check_indices(c: _Checker, ep: dict, path: str, n_slots: int) -> tuple[int,
     return target, tuple(in_place)
 
 
-def _check_colors(c: _Checker, ep: dict, path: str, n_slots: int):
+def _check_colors(
+    c: _Checker, ep: dict[str, Any], path: str, n_slots: int
+) -> tuple[tuple[float, float, float], tuple[tuple[float, float, float], ...]]:
     cp = f"{path}.colors"
     colors = c.obj(c.field(ep, "colors", path), cp)
-    board = c.vec(c.field(colors, "board", cp), f"{cp}.board", 3, lo=0.0, hi=1.0)
-    raw = c.list(c.field(colors, "slots", cp), f"{cp}.slots")
+    board = c.rgb(c.field(colors, "board", cp), f"{cp}.board")
+    raw = c.array(c.field(colors, "slots", cp), f"{cp}.slots")
     if len(raw) != n_slots:
         c.fail(f"{cp}.slots", f"expected one colour per slot ({n_slots}), got {len(raw)}")
-    slot_colors = tuple(c.vec(v, f"{cp}.slots[{k}]", 3, lo=0.0, hi=1.0) for k, v in enumerate(raw))
+    slot_colors = tuple(c.rgb(v, f"{cp}.slots[{k}]") for k, v in enumerate(raw))
     return board, slot_colors
 
 
-def _check_layout(c: _Checker, slots: Sequence[Slot], path: str, board: BoardSpec):
+def _check_layout(c: _Checker, slots: Sequence[Slot], path: str, board: BoardSpec) -> None:
     polys = placed_slot_polygons([s.pose for s in slots], board.clearance)
     problems = layout_problems(polys, board.size)
     if problems:
@@ -428,8 +440,8 @@ def _check_layout(c: _Checker, slots: Sequence[Slot], path: str, board: BoardSpe
 
 def _check_episode(c: _Checker, ep: Any, i: int, board: BoardSpec) -> Episode:
     path = f"episodes[{i}]"
-    c.obj(ep, path)
-    kit_id = c.int(c.field(ep, "kit_id", path), f"{path}.kit_id", lo=0)
+    ep = c.obj(ep, path)
+    kit_id = c.integer(c.field(ep, "kit_id", path), f"{path}.kit_id", lo=0)
     slots = _check_slots(c, ep, path)
     target, in_place = _check_indices(c, ep, path, len(slots))
     board_color, slot_colors = _check_colors(c, ep, path, len(slots))
@@ -448,7 +460,7 @@ def _check_episode(c: _Checker, ep: Any, i: int, board: BoardSpec) -> Episode:
 def validate_episodes(data: Any, source: str = "<episodes>") -> EpisodeSet:
     """Check a parsed episode document against schema v1 and build the EpisodeSet."""
     c = _Checker(source)
-    c.obj(data, "(top level)")
+    data = c.obj(data, "(top level)")
     fmt = c.field(data, "format", "")
     if fmt != FORMAT:
         c.fail("format", f"expected {FORMAT!r}, got {_describe(fmt)}")
@@ -456,7 +468,7 @@ def validate_episodes(data: Any, source: str = "<episodes>") -> EpisodeSet:
     if isinstance(version, bool) or version != VERSION:
         c.fail("version", f"unsupported version {_describe(version)} (supported: {VERSION})")
     board = _check_board(c, data)
-    raw = c.list(c.field(data, "episodes", ""), "episodes", min_len=1)
+    raw = c.array(c.field(data, "episodes", ""), "episodes", min_len=1)
     episodes = tuple(_check_episode(c, ep, i, board) for i, ep in enumerate(raw))
     return EpisodeSet(source=source, board=board, episodes=episodes)
 

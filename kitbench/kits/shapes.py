@@ -19,8 +19,9 @@ up to their polygon step (2*pi/48 for the disc and the ring's outer edge,
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import shapely
@@ -29,7 +30,8 @@ from shapely.geometry import LineString, Polygon
 from shapely.geometry.polygon import orient
 from shapely.ops import unary_union
 
-from .convex import extrude_convex, extrude_mesh
+from kitbench.errors import KitbenchError
+from kitbench.kits.convex import extrude_convex, extrude_mesh
 
 NUM_SHAPES = 20
 SHAPE_HEIGHT = 0.03
@@ -50,9 +52,10 @@ SHAPE_NAMES: tuple[str, ...] = (
     "kite", "ring", "hexagon", "half_disc", "chevron",
 )  # fmt: skip
 
-# Panda hand: the planner grasps from above with the pads closing across the shape.
-FINGER_PAD_WIDTH = 0.018
-MAX_GRASP_WIDTH = 0.045
+# Width of the pads of a parallel gripper closing across a shape from above, for callers that name no
+# hand. It is the Panda's (kitbench.robots.panda.FINGER_PAD_WIDTH, held equal by tests/test_kit_physics.py),
+# the one hand kitbench drives, and it is what ShapeGeometry.grasp_angle / grasp_width are computed for.
+DEFAULT_PAD_WIDTH = 0.018
 # Slot offsets use mitred joins; a generous limit keeps star tips mitred, not bevelled.
 MITRE_LIMIT = 10.0
 
@@ -62,21 +65,24 @@ RING_INNER_SEGMENTS = 12
 
 _MM = 1e-3
 
+Point = tuple[float, float]
+Vertices = list[Point]
+
 
 # --------------------------------------------------------------------------- part builders
 # Each builder returns interior-disjoint convex polygons in millimetres, in any frame;
 # shape_geometry() recentres them on the area centroid and converts to metres.
 
 
-def _rect(x0: float, y0: float, x1: float, y1: float) -> list[tuple[float, float]]:
+def _rect(x0: float, y0: float, x1: float, y1: float) -> Vertices:
     return [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
 
 
-def _regular(n: int, radius: float, phase: float = 0.0) -> list[tuple[float, float]]:
+def _regular(n: int, radius: float, phase: float = 0.0) -> Vertices:
     return [(radius * math.cos(phase + TWO_PI * k / n), radius * math.sin(phase + TWO_PI * k / n)) for k in range(n)]
 
 
-def _star(points: int, outer: float, inner: float) -> list[list[tuple[float, float]]]:
+def _star(points: int, outer: float, inner: float) -> list[Vertices]:
     """Star as a central regular polygon through the inner vertices plus one triangle per tip."""
     phase = math.pi / 2
     core = _regular(points, inner, phase + math.pi / points)
@@ -87,74 +93,77 @@ def _star(points: int, outer: float, inner: float) -> list[list[tuple[float, flo
     return parts
 
 
-def _l_block():
+def _l_block() -> list[Vertices]:
     return [_rect(0, 0, 14, 40), _rect(14, 0, 34, 14)]
 
 
-def _t_block():
+def _t_block() -> list[Vertices]:
     return [_rect(0, 26, 40, 40), _rect(13, 0, 27, 26)]
 
 
-def _triangle():
+def _triangle() -> list[Vertices]:
     return [_regular(3, 44 / math.sqrt(3), math.pi / 2)]
 
 
-def _square():
+def _square() -> list[Vertices]:
     return [_rect(-18, -18, 18, 18)]
 
 
-def _plus():
+def _plus() -> list[Vertices]:
     return [_rect(-22, -8, 22, 8), _rect(-8, 8, 8, 22), _rect(-8, -22, 8, -8)]
 
 
-def _arrow():
+def _arrow() -> list[Vertices]:
     return [_rect(0, -7, 24, 7), [(24, -18), (44, 0), (24, 18)]]
 
 
-def _rectangle():
+def _rectangle() -> list[Vertices]:
     return [_rect(-25, -12, 25, 12)]
 
 
-def _pentagon():
+def _pentagon() -> list[Vertices]:
     return [_regular(5, 23, math.pi / 2)]
 
 
-def _s_tetromino():
+def _s_tetromino() -> list[Vertices]:
     return [_rect(0, 0, 28, 14), _rect(14, 14, 42, 28)]
 
 
-def _star4():
+def _star4() -> list[Vertices]:
     return _star(4, 28, 11)
 
 
-def _star5():
+def _star5() -> list[Vertices]:
     return _star(5, 26, 11.5)
 
 
-def _disc():
+def _disc() -> list[Vertices]:
     return [_regular(DISC_SEGMENTS, 20)]
 
 
-def _house():
-    body = [(0, 0), (32, 0), (32, 22), (16, 36), (0, 22)]
-    roof_y = lambda x: 22 + (32 - x) * 14 / 16  # noqa: E731  right roof slope
-    chimney = [(20, roof_y(20)), (30, roof_y(30)), (30, 40), (20, 40)]
+def _house() -> list[Vertices]:
+    body: Vertices = [(0, 0), (32, 0), (32, 22), (16, 36), (0, 22)]
+
+    def roof_y(x: float) -> float:  # the right roof slope
+        return 22 + (32 - x) * 14 / 16
+
+    chimney: Vertices = [(20, roof_y(20)), (30, roof_y(30)), (30, 40), (20, 40)]
     return [body, chimney]
 
 
-def _right_trapezoid():
+def _right_trapezoid() -> list[Vertices]:
     return [[(0, 0), (40, 0), (24, 30), (0, 30)]]
 
 
-def _f_block():
+def _f_block() -> list[Vertices]:
     return [_rect(0, 0, 12, 44), _rect(12, 32, 34, 44), _rect(12, 12, 26, 22)]
 
 
-def _kite():
+def _kite() -> list[Vertices]:
     return [[(0, -32), (18, 0), (0, 14), (-18, 0)]]
 
 
-def _ring():
+def _ring() -> list[Vertices]:
     """Annulus split into sectors of one inner edge and four outer edges each.
 
     Twelve sectors, not more: each is 10.4 mm across, as wide as the narrowest parts of the other shapes.
@@ -163,7 +172,7 @@ def _ring():
     """
     outer, inner = 21.0, 11.0
     step = RING_OUTER_SEGMENTS // RING_INNER_SEGMENTS
-    parts = []
+    parts: list[Vertices] = []
     # Angles are reduced modulo the segment count so neighbouring sectors share bit-identical
     # vertices (sin(2*pi) != sin(0) in floating point would leave a slit instead of a hole).
     for j in range(RING_INNER_SEGMENTS):
@@ -177,20 +186,20 @@ def _ring():
     return parts
 
 
-def _hexagon():
+def _hexagon() -> list[Vertices]:
     return [_regular(6, 24)]
 
 
-def _half_disc():
+def _half_disc() -> list[Vertices]:
     n = 16
     return [[(25 * math.cos(math.pi * k / n), 25 * math.sin(math.pi * k / n)) for k in range(n + 1)]]
 
 
-def _chevron():
+def _chevron() -> list[Vertices]:
     return [[(2, 0), (20, 0), (-2, 20), (-20, 20)], [(20, 0), (2, 0), (-20, -20), (-2, -20)]]
 
 
-_BUILDERS = (
+_BUILDERS: tuple[Callable[[], list[Vertices]], ...] = (
     _l_block, _t_block, _triangle, _square, _plus,
     _arrow, _rectangle, _pentagon, _s_tetromino, _star4,
     _star5, _disc, _house, _right_trapezoid, _f_block,
@@ -220,19 +229,19 @@ class ShapeGeometry:
     footprint_radius: float  # max distance of the outline from the origin
     area: float
     grasp_angle: float  # finger closing direction (rad, shape frame) with the narrowest grasp
-    grasp_width: float  # outline width across the pads at grasp_angle
+    grasp_width: float  # outline width across the pads at grasp_angle (both for DEFAULT_PAD_WIDTH pads)
 
 
-def check_shape_id(shape_id) -> int:
+def check_shape_id(shape_id: object) -> int:
     """Validate a shape id, naming the bad value and the valid range (errors surface in env configs)."""
     if isinstance(shape_id, (bool, np.bool_)) or not isinstance(shape_id, (int, np.integer)):
-        raise ValueError(f"shape id must be an int in 0..{NUM_SHAPES - 1}, got {shape_id!r}")
+        raise KitbenchError(f"shape id must be an int in 0..{NUM_SHAPES - 1}, got {shape_id!r}")
     if not 0 <= int(shape_id) < NUM_SHAPES:
-        raise ValueError(f"unknown shape id {int(shape_id)} (valid: 0..{NUM_SHAPES - 1})")
+        raise KitbenchError(f"unknown shape id {int(shape_id)} (valid: 0..{NUM_SHAPES - 1})")
     return int(shape_id)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _parts_and_outline(shape_id: int) -> tuple[tuple[np.ndarray, ...], Polygon]:
     """Convex parts (metres, CCW, centroid at origin) and their union."""
     raw = [Polygon(np.asarray(p, dtype=np.float64) * _MM) for p in _BUILDERS[shape_id]()]
@@ -252,13 +261,13 @@ def shape_outline(shape_id: int) -> Polygon:
     return _parts_and_outline(check_shape_id(shape_id))[1]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cached_geometry(shape_id: int) -> ShapeGeometry:
     parts, outline = _parts_and_outline(shape_id)
     pieces = [extrude_convex(p, 0.0, SHAPE_HEIGHT) for p in parts]
     vv, vf = extrude_mesh(outline, 0.0, SHAPE_HEIGHT)
     coords = np.vstack([np.asarray(outline.exterior.coords)] + [np.asarray(r.coords) for r in outline.interiors])
-    angle, width = _narrowest_grasp(outline)
+    angle, width = _narrowest_grasp(outline, DEFAULT_PAD_WIDTH)
     return ShapeGeometry(
         shape_id=shape_id,
         name=SHAPE_NAMES[shape_id],
@@ -302,7 +311,7 @@ def offset_outline(outline: Polygon, clearance: float) -> Polygon:
     return orient(grown, 1.0)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cached_slot(shape_id: int, clearance: float) -> Polygon:
     return offset_outline(shape_outline(shape_id), clearance)
 
@@ -310,7 +319,7 @@ def _cached_slot(shape_id: int, clearance: float) -> Polygon:
 def slot_outline(shape_id: int, clearance: float = 0.002) -> Polygon:
     """The pocket outline for a shape in the shape frame: its exterior grown by `clearance` per side."""
     if not clearance >= 0:
-        raise ValueError(f"clearance must be >= 0, got {clearance!r}")
+        raise KitbenchError(f"clearance must be >= 0, got {clearance!r}")
     return _cached_slot(check_shape_id(shape_id), float(clearance))
 
 
@@ -336,7 +345,7 @@ def rotational_symmetry_residual(polygon: Polygon, angle: float) -> float:
 # --------------------------------------------------------------------------- grasping
 
 
-def _strip_width(outline: Polygon, theta: float, pad_width: float, center: tuple[float, float]) -> float:
+def _strip_width(outline: Polygon, theta: float, pad_width: float, center: Point) -> float:
     """Extent along (cos, sin)(theta) of the outline inside the pads' sweep through `center`."""
     u = np.array([math.cos(theta), math.sin(theta)])
     n = np.array([-u[1], u[0]])
@@ -352,33 +361,37 @@ def _strip_width(outline: Polygon, theta: float, pad_width: float, center: tuple
     return float(proj.max() - proj.min())
 
 
-def grasp_width_at(outline: Polygon, theta: float, pad_width: float = FINGER_PAD_WIDTH, center=(0.0, 0.0)) -> float:
+def grasp_width_at(
+    outline: Polygon, theta: float, pad_width: float = DEFAULT_PAD_WIDTH, center: Point = (0.0, 0.0)
+) -> float:
     """Opening a parallel gripper needs to span `outline` closing along angle theta (shape frame).
 
-    The fingers sweep a strip `pad_width` wide centred on the line through
-    `center` along theta; the required opening is the outline's extent along
-    theta inside that strip.
+    The fingers sweep a strip `pad_width` wide (the gripper's pad width: pass
+    the hand's own) centred on the line through `center` along theta; the
+    required opening is the outline's extent along theta inside that strip.
     """
     return _strip_width(outline, theta, pad_width, center)
 
 
-def grasp_width(shape_id: int, theta: float, pad_width: float = FINGER_PAD_WIDTH, center=(0.0, 0.0)) -> float:
+def grasp_width(shape_id: int, theta: float, pad_width: float = DEFAULT_PAD_WIDTH, center: Point = (0.0, 0.0)) -> float:
     """Gripper opening needed to grasp shape `shape_id` through `center` closing along theta."""
     return grasp_width_at(shape_outline(shape_id), theta, pad_width, center)
 
 
-def _narrowest_grasp(outline: Polygon, samples: int = 180) -> tuple[float, float]:
+def _narrowest_grasp(outline: Polygon, pad_width: float, samples: int = 180) -> tuple[float, float]:
     """Closing direction in [0, pi) with the smallest opening (ties: the smallest angle)."""
     thetas = np.arange(samples) * math.pi / samples
-    widths = np.array([_strip_width(outline, float(t), FINGER_PAD_WIDTH, (0.0, 0.0)) for t in thetas])
+    widths = np.array([_strip_width(outline, float(t), pad_width, (0.0, 0.0)) for t in thetas])
     k = int(np.argmin(widths + 1e-9 * np.arange(samples)))
     return float(thetas[k]), float(widths[k])
 
 
-def narrowest_grasp(shape_id: int) -> tuple[float, float]:
+def narrowest_grasp(shape_id: int, pad_width: float = DEFAULT_PAD_WIDTH) -> tuple[float, float]:
     """(theta, width): the closing direction through the origin needing the smallest opening."""
-    g = shape_geometry(shape_id)
-    return g.grasp_angle, g.grasp_width
+    if pad_width == DEFAULT_PAD_WIDTH:
+        g = shape_geometry(shape_id)
+        return g.grasp_angle, g.grasp_width
+    return _narrowest_grasp(shape_outline(shape_id), pad_width)
 
 
 def min_thickness(shape_id: int) -> float:
@@ -396,7 +409,7 @@ def min_thickness(shape_id: int) -> float:
         outer_min = float(LineString(ext).distance(shapely.points(0.0, 0.0)))
         return outer_min - inner_max
     parts = _parts_and_outline(shape_id)[0]
-    diam = []
+    diam: list[float] = []
     for p in parts:
         poly = Polygon(p)
         circle = shapely.maximum_inscribed_circle(poly, tolerance=1e-6)
@@ -405,8 +418,7 @@ def min_thickness(shape_id: int) -> float:
 
 
 __all__ = [
-    "FINGER_PAD_WIDTH",
-    "MAX_GRASP_WIDTH",
+    "DEFAULT_PAD_WIDTH",
     "MITRE_LIMIT",
     "NUM_SHAPES",
     "SHAPE_HEIGHT",

@@ -13,7 +13,7 @@ phi + pi) and the shape can be seated at any yaw equivalent under its symmetry; 
 pair needing the least total wrist rotation that keeps joint 7 inside its limits, turning the shortest way or the
 long way round as the limits require (an asymmetric shape may need up to 180 degrees).
 
-Every motion is timed as fast as the Panda's joint velocity and acceleration limits allow (`motion.ArmIK.plan`);
+Every motion is timed as fast as the Panda's joint velocity and acceleration limits allow (`ik.ArmIK.plan`);
 the final descent into the pocket runs at a quarter of that.
 
 Measured (`bench/expert_assembling_kits.py`, seeds 0-499, pd_joint_pos): 487/500 (97.4%), steps over successes
@@ -30,33 +30,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
-import numpy as np
-
 from functools import lru_cache
 
+import numpy as np
 from shapely import affinity
 from shapely.geometry import Polygon, box
 
-from kitbench.envs.assembling_kits import yaw_error
-from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle, planar_yaw, wrap_angle
+from kitbench.geometry import (
+    axis_angle_to_matrix,
+    matrix_to_axis_angle,
+    planar_yaw,
+    wrap_angle,
+)
 from kitbench.kits import shape_geometry
 from kitbench.kits.shapes import grasp_width_at
-from kitbench.planning.motion import (
-    ARM_MAX_ACCELERATION,
-    ARM_MAX_VELOCITY,
-    ArmIK,
-    PhaseSequencer,
-    Step,
-    hold,
-    make_pose,
-    pose_matrix,
-    rot_z,
-    steps_from,
-)
+from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
+from kitbench.planning.planner import PhasePlanner
+from kitbench.planning.poses import HAND_DOWN, make_pose, rot_z
+from kitbench.tasks.assembling_kits import yaw_error
 
-OPEN, CLOSED = -1.0, 1.0
-HAND_DOWN = np.diag([1.0, -1.0, -1.0])  # TCP pointing down, hand x along world x, fingers closing along world y
 FINGERTIP_BELOW_TCP = 0.0097  # m, the finger pads' lowest point under the TCP (Panda collision boxes)
 # The open fingertips' lowest boxes (Panda collision geometry, TCP frame): 4.0 to 5.5 cm out along the closing
 # direction, 1.8 cm across it. The fingers open fully before every grasp, so this is where they come down.
@@ -123,66 +115,41 @@ def signed_yaw_options(delta: float, symmetry: float) -> list[float]:
     return out
 
 
-class AssemblingKitsPlanner:
-    """Closed loop between phases, open loop within them; reads the simulated state from `env.unwrapped`.
+class AssemblingKitsPlanner(PhasePlanner):
+    """The AssemblingKits-v1 expert (module docstring); its public API is `PhasePlanner`'s.
 
-    `act` returns a `pd_joint_pos` action (7 joint targets, gripper -1 open .. 1 closed); `phase`, `tcp_target`,
-    `grasp_attempts` and `failure` (None, "grasp", "ik", "dropped") as for the LiftPegUpright expert.
+    `failure` is None, "grasp", "ik" or "dropped".
     """
 
-    def __init__(self, env, config: AssemblingKitsPlannerConfig | None = None):
-        self.env = env.unwrapped
-        self.cfg = config or AssemblingKitsPlannerConfig()
-        self.dt = self.env.control_timestep
-        self.max_velocity = self.cfg.speed_factor * ARM_MAX_VELOCITY
-        self.max_acceleration = self.cfg.speed_factor * ARM_MAX_ACCELERATION
-        if self.env.control_mode == "pd_joint_delta_pos":  # its actions move a joint at most this far per step
-            step_limit = self.env.action_space.high[:7].astype(np.float64) * 0.98
-            self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
-        self.ik = ArmIK(pose_matrix(self.env.robot.base_pose))
-        self.q7_limits = self.ik.limits[6]
-        self.sequencer = PhaseSequencer(self._plan_next)
-        self.reset()
+    cfg: AssemblingKitsPlannerConfig
 
-    # -- public API ---------------------------------------------------------------------------------------------
-    def reset(self, obs=None, info=None) -> None:
-        self.sequencer.reset()
-        self.grasp_attempts = 0
+    @classmethod
+    def default_config(cls) -> AssemblingKitsPlannerConfig:
+        return AssemblingKitsPlannerConfig()
+
+    def target_actor(self):
+        return self.env.obj
+
+    def on_reset(self) -> None:
         self.align_corrections = 0
-        self.failure: str | None = None
         self.turn_at_goal = 0.0  # signed rotation of the shape from its pose at the grasp to the goal, rad
 
-    def act(self, obs=None) -> np.ndarray:
-        step = self.sequencer.next_step()
-        return np.append(step.q, step.gripper).astype(np.float32)
-
     @property
-    def phase(self) -> str | None:
-        return self.sequencer.phase
-
-    @property
-    def tcp_target(self) -> np.ndarray | None:
-        return None if self.sequencer.last is None else self.sequencer.last.tcp
-
-    # -- state ----------------------------------------------------------------------------------------------------
-    def _obj(self) -> np.ndarray:
-        return pose_matrix(self.env.obj.pose)
-
-    def _tcp(self) -> np.ndarray:
-        return pose_matrix(self.env.robot.tcp_pose())
-
-    def _last(self) -> Step:
-        if self.sequencer.last is None:
-            q = self.env.robot.qpos()[:7].astype(np.float64)
-            return Step(self.ik.fk(q), q, OPEN, "start")
-        return self.sequencer.last
-
-    def _held(self) -> bool:
-        return bool(self.env.robot.is_grasping(self.env.obj))
+    def q7_limits(self) -> np.ndarray:
+        """Joint 7's (lower, upper) limits, rad: the wrist turn the grasp and the goal yaw must fit in."""
+        return self.ik.limits[6]
 
     # -- paths ----------------------------------------------------------------------------------------------------
-    def _move(self, start: Step, target: np.ndarray, turn: float, gripper: float, phase: str,
-              speed: float = 1.0, min_steps: int = 2) -> list[Step]:
+    def _move(
+        self,
+        start: Step,
+        target: np.ndarray,
+        turn: float,
+        gripper: float,
+        phase: str,
+        speed: float = 1.0,
+        min_steps: int = 2,
+    ) -> list[Step]:
         """A straight TCP move to `target` turning the hand by `turn` rad about the vertical (signed: the long
         way round when joint 7 needs it), any residual tilt spread along the way."""
         a = start.tcp
@@ -193,8 +160,7 @@ class AssemblingKitsPlanner:
             rotation = rot_z(s * turn) @ a[:3, :3] @ axis_angle_to_matrix(s * residual)
             return make_pose(rotation, (1 - s) * a[:3, 3] + s * target[:3, 3])
 
-        path = self.ik.plan(pose_at, start.q, speed * self.max_velocity, speed * self.max_acceleration, self.dt,
-                            min_steps=min_steps)
+        path = self._timed(pose_at, start, min_steps=min_steps, speed=speed)
         if not path.ik.ok(position_tol=4e-3, rotation_tol=4e-2):
             self.failure = self.failure or "ik"
         return steps_from(path, gripper, phase)
@@ -209,23 +175,25 @@ class AssemblingKitsPlanner:
         return lo + self.cfg.joint7_margin <= q7 <= hi - self.cfg.joint7_margin
 
     # -- phases ---------------------------------------------------------------------------------------------------
-    def _plan_next(self, finished: str | None) -> list[Step]:
+    def plan_next(self, finished: str | None) -> list[Step]:
         if finished is None:
             return self._plan_approach()
         if finished == "descend":
             return hold(self._last(), self.cfg.close_steps, gripper=CLOSED, phase="grasp")
         if finished == "grasp":
-            if self._held():
+            if self._holding():
                 return self._plan_lift()
             if self.grasp_attempts < self.cfg.max_grasp_attempts:
                 return self._plan_regrasp()
             return self._fail("grasp")
         if finished == "lift":
-            if not self._held():
-                return self._plan_regrasp() if self.grasp_attempts < self.cfg.max_grasp_attempts else self._fail("dropped")
+            if not self._holding():
+                return (
+                    self._plan_regrasp() if self.grasp_attempts < self.cfg.max_grasp_attempts else self._fail("dropped")
+                )
             return self._plan_transport()
         if finished in ("transport", "align"):
-            if not self._held():
+            if not self._holding():
                 return self._fail("dropped")
             return self._plan_align()
         if finished == "insert":
@@ -236,16 +204,22 @@ class AssemblingKitsPlanner:
             return self._move(self._last(), target, 0.0, OPEN, "retreat")
         return self._fail(self.failure or "done") if finished != "retreat" else hold(self._last(), 1, phase="retreat")
 
-    def _fail(self, reason: str) -> list[Step]:
-        self.failure = self.failure or reason
-        return hold(self._last(), 1, phase="failed")
-
     def _seated_shapes(self) -> list[Polygon]:
         """Outlines of the shapes seated in the kit: 2 cm proud of the board, fingertips must not come down on them."""
         episode = self.env.episode
-        return [affinity.translate(affinity.rotate(shape_geometry(episode.slots[i].shape_id).outline,
-                                                   episode.slots[i].yaw, origin=(0, 0), use_radians=True),
-                                   episode.slots[i].pos[0], episode.slots[i].pos[1]) for i in episode.obj_in_place]
+        return [
+            affinity.translate(
+                affinity.rotate(
+                    shape_geometry(episode.slots[i].shape_id).outline,
+                    episode.slots[i].yaw,
+                    origin=(0, 0),
+                    use_radians=True,
+                ),
+                episode.slots[i].pos[0],
+                episode.slots[i].pos[1],
+            )
+            for i in episode.obj_in_place
+        ]
 
     def _pick_obstacles(self, obj: np.ndarray) -> list[Polygon]:
         """Around the shape where it lies: the board's edge for a shape on the table (the fingertips go below the
@@ -267,7 +241,7 @@ class AssemblingKitsPlanner:
         close along each, and the goal yaws equivalent under the shape's symmetry: keep joint 7 inside its limits
         at the grasp and at the goal; prefer fingertips clear of obstacles (up to `clear_enough`) where they come
         down at the grasp and beside the slot, then the least wrist rotation, then the narrowest opening."""
-        obj = self._obj()
+        obj = self._object_pose()
         obj_yaw = planar_yaw(obj[:3, :3])
         shape = self.env.shape
         hand_yaw = planar_yaw(start.tcp[:3, :3])
@@ -301,7 +275,7 @@ class AssemblingKitsPlanner:
         self.grasp_attempts += 1
         start = start or self._last()
         turn, self.turn_at_goal = self._choose_grasp(start)
-        obj = self._obj()
+        obj = self._object_pose()
         rotation = rot_z(turn) @ start.tcp[:3, :3]
         rotation = rot_z(planar_yaw(rotation)) @ HAND_DOWN  # exactly downward, at the chosen yaw
         grasp = make_pose(rotation, [obj[0, 3], obj[1, 3], obj[2, 3] + self.cfg.grasp_height])
@@ -326,7 +300,7 @@ class AssemblingKitsPlanner:
     def _plan_lift(self) -> list[Step]:
         start = self._last()
         target = start.tcp.copy()
-        target[2, 3] = self._carry_z(self._obj(), self._tcp())
+        target[2, 3] = self._carry_z(self._object_pose(), self._tcp())
         return self._move(start, target, 0.0, CLOSED, "lift")
 
     def _goal_tcp(self, obj: np.ndarray, tcp: np.ndarray, rotation: float, shape_bottom_z: float) -> np.ndarray:
@@ -341,7 +315,7 @@ class AssemblingKitsPlanner:
         """Carry the shape over its slot, turning it to the goal yaw, measured: the turn is recomputed from the
         shape's yaw now (it may have turned in the hand), keeping the direction chosen at the grasp."""
         start = self._last()
-        obj, tcp = self._obj(), self._tcp()
+        obj, tcp = self._object_pose(), self._tcp()
         delta = wrap_angle(self.env.goal_rot - planar_yaw(obj[:3, :3]))
         options = signed_yaw_options(delta, self.env.shape.symmetry)
         rotation = min(options, key=lambda r: abs(r - self.turn_at_goal))
@@ -353,12 +327,13 @@ class AssemblingKitsPlanner:
     def _plan_align(self) -> list[Step]:
         """Measure the shape over the slot; re-aim the hand if it is off, else lower it in."""
         start = self._last()
-        obj, tcp = self._obj(), self._tcp()
+        obj, tcp = self._object_pose(), self._tcp()
         obj_yaw = planar_yaw(obj[:3, :3])
         yaw_off = yaw_error(obj_yaw, self.env.goal_rot, self.env.shape.symmetry)
         xy_off = float(np.linalg.norm(self.env.goal_pos[:2] - obj[:2, 3]))
         if (xy_off > self.cfg.align_position_tolerance or yaw_off > self.cfg.align_yaw_tolerance) and (
-                self.align_corrections < self.cfg.max_align_corrections):
+            self.align_corrections < self.cfg.max_align_corrections
+        ):
             self.align_corrections += 1
             delta = wrap_angle(self.env.goal_rot - obj_yaw)
             rotation = min(signed_yaw_options(delta, self.env.shape.symmetry), key=abs)

@@ -8,7 +8,7 @@ it turns (the TCP ends at base-frame x = 0.4). The swing is planned around the p
 table as the peg tilts, travels just above it and stops 2 mm above the table with the peg vertical, held at
 the success height (no release is needed; success ends the episode).
 
-Every motion is timed as fast as the Panda's joint velocity and acceleration limits allow (`motion.ArmIK.plan`).
+Every motion is timed as fast as the Panda's joint velocity and acceleration limits allow (`ik.ArmIK.plan`).
 Measured alternatives (steps to success, 50 allowed; all variants solved every seed):
 - as above (seeds 0-499): median 27, p90 28, max 29;
 - grasping 3 or 6 cm from the centre towards the robot (less carrying, seeds 0-199): median 27 / 28, max 30 /
@@ -30,28 +30,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kitbench.envs.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
-from kitbench.geometry import tilt_from_vertical
-from kitbench.planning.motion import (
-    ARM_MAX_ACCELERATION,
-    ARM_MAX_VELOCITY,
-    ArmIK,
-    PhaseSequencer,
-    Step,
-    axis_angle_to_matrix,
+from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
+from kitbench.planning.ik import TimedPath
+from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
+from kitbench.planning.planner import PhasePlanner
+from kitbench.planning.poses import (
+    HAND_DOWN,
     cubic_bezier,
-    hold,
     interpolate_pose,
     make_pose,
-    pose_matrix,
     rot_y,
     rot_z,
     smoothstep,
-    steps_from,
 )
-
-OPEN, CLOSED = -1.0, 1.0
-HAND_DOWN = np.diag([1.0, -1.0, -1.0])  # TCP rotation pointing down, hand x along the frame's x
+from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
 
 
 @dataclass(frozen=True)
@@ -76,67 +68,26 @@ class PlannerConfig:
     max_correctable_tilt: float = 0.5  # place: give up on a peg leaning more than this in the hand, rad
 
 
-class LiftPegUprightPlanner:
-    """Closed-loop between phases, open-loop within them; reads the simulated state from `env.unwrapped`.
+class LiftPegUprightPlanner(PhasePlanner):
+    """The LiftPegUpright-v1 expert (module docstring); its public API is `PhasePlanner`'s.
 
-    `act` returns a `pd_joint_pos` action (7 joint targets, gripper -1 open .. 1 closed) whatever the env's
-    control mode: an env in another mode needs the target converted (`kitbench.policies.convert`). In
-    `pd_joint_delta_pos` the plans keep every joint step inside that mode's +-0.1 rad action box (2 rad/s, below
-    joints 5-7's 2.61 rad/s): a clipped step would leave the joints out of step with one another.
-
-    `phase` names the phase being played and `tcp_target` is the 4x4 world TCP pose of the last action.
-    `grasp_attempts` and `failure` (None, "grasp", "ik", "dropped" or "tilted") let benchmarks sort failures.
+    `failure` is None, "grasp", "ik", "dropped" or "tilted".
     """
 
-    def __init__(self, env, config: PlannerConfig | None = None):
-        self.env = env.unwrapped
-        self.cfg = config or PlannerConfig()
-        self.dt = self.env.control_timestep
-        self.max_velocity = self.cfg.speed_factor * ARM_MAX_VELOCITY
-        self.max_acceleration = self.cfg.speed_factor * ARM_MAX_ACCELERATION
-        if self.env.control_mode == "pd_joint_delta_pos":  # its actions move a joint at most this far per step
-            step_limit = self.env.action_space.high[:7].astype(np.float64) * 0.98
-            self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
-        self.ik = ArmIK(pose_matrix(self.env.robot.base_pose))
-        self.sequencer = PhaseSequencer(self._plan_next)
-        self.reset()
+    cfg: PlannerConfig
 
-    # -- public API ---------------------------------------------------------------------------------------------
-    def reset(self, obs=None, info=None) -> None:
-        self.sequencer.reset()
-        self.grasp_attempts = 0
-        self.failure: str | None = None
+    @classmethod
+    def default_config(cls) -> PlannerConfig:
+        return PlannerConfig()
 
-    def act(self, obs=None) -> np.ndarray:
-        step = self.sequencer.next_step()
-        return np.append(step.q, step.gripper).astype(np.float32)
-
-    @property
-    def phase(self) -> str | None:
-        return self.sequencer.phase
-
-    @property
-    def tcp_target(self) -> np.ndarray | None:
-        return None if self.sequencer.last is None else self.sequencer.last.tcp
+    def target_actor(self):
+        return self.env.peg
 
     # -- state ----------------------------------------------------------------------------------------------------
-    def _peg(self) -> np.ndarray:
-        return pose_matrix(self.env.peg.pose)
-
-    def _tcp(self) -> np.ndarray:
-        return pose_matrix(self.env.robot.tcp_pose())
-
-    def _last(self) -> Step:
-        """Where the next phase starts: the last commanded step (the measured joints before the first action)."""
-        if self.sequencer.last is None:
-            q = self.env.robot.qpos()[:7].astype(np.float64)
-            return Step(self.ik.fk(q), q, OPEN, "start")
-        return self.sequencer.last
-
     def _peg_frame(self) -> np.ndarray:
         """The lying peg's frame: origin on the table under its centre, x along its axis pointing away from the
         robot (the end that will go down), z up."""
-        peg = self._peg()
+        peg = self._object_pose()
         axis = peg[:3, 0]
         if axis[0] < 0:
             axis = -axis
@@ -147,32 +98,23 @@ class LiftPegUprightPlanner:
         local = make_pose(rot_y(-c.grasp_tilt) @ HAND_DOWN, [c.grasp_offset, 0.0, PEG_HALF_WIDTH + c.grasp_height])
         return self._peg_frame() @ local
 
-    def _timed(self, pose_at, start: Step, min_steps: int = 1):
-        return self.ik.plan(pose_at, start.q, self.max_velocity, self.max_acceleration, self.dt, min_steps=min_steps)
-
     # -- phases ---------------------------------------------------------------------------------------------------
-    def _plan_next(self, finished: str | None) -> list[Step]:
-        """The transition table: each phase is planned from the simulated state when it starts."""
+    def plan_next(self, finished: str | None) -> list[Step]:
         if finished is None:
             return self._plan_approach()
         if finished == "descend":
             return self._plan_close()
         if finished == "grasp":
-            if self.env.robot.is_grasping(self.env.peg):
+            if self._holding():
                 return self._plan_swing()
             if self.grasp_attempts < self.cfg.max_grasp_attempts:
                 return self._plan_regrasp()  # its steps run on into the next descent
             return self._fail("grasp")
         if finished in ("swing", "place"):
-            if not self.env.robot.is_grasping(self.env.peg):
+            if not self._holding():
                 return self._fail("dropped")
             return self._plan_place()
         return self._fail(self.failure or "unknown")
-
-    def _fail(self, reason: str) -> list[Step]:
-        """Give up: keep still (the episode runs out)."""
-        self.failure = self.failure or reason
-        return hold(self._last(), 1, phase="failed")
 
     def _plan_approach(self, start: Step | None = None, lift_off: bool = False) -> list[Step]:
         """One smooth motion to the grasp: a curve that turns the hand on the way and arrives vertically above the
@@ -186,7 +128,7 @@ class LiftPegUprightPlanner:
         p0, p3 = start.tcp[:3, 3], grasp[:3, 3]
         drop = self.cfg.descend_height
         p2 = p3 + np.array([0.0, 0.0, drop])
-        split = np.linalg.norm(p2 - p0) / (np.linalg.norm(p2 - p0) + drop)  # s at which the descent starts
+        split = float(np.linalg.norm(p2 - p0) / (np.linalg.norm(p2 - p0) + drop))  # s at which the descent starts
         p1 = p0 + (np.array([0.0, 0.0, drop]) if lift_off else (p2 - p0) / 3.0)
         p1b = p2 + np.array([0.0, 0.0, drop * split / (3.0 * (1.0 - split))])
 
@@ -224,9 +166,9 @@ class LiftPegUprightPlanner:
         """Turn the held peg upright about its far end, carrying it back into reach; retry nearer the base if
         the IK cannot follow. The peg's pose in the hand is measured, not assumed."""
         start = self._last()
-        peg = self._peg()
+        peg = self._object_pose()
         tcp_in_peg = np.linalg.inv(peg) @ self._tcp()
-        best = None
+        best: TimedPath | None = None
         for attempt in range(4):
             x_max = self.cfg.final_tcp_x_max - attempt * self.cfg.final_x_backoff
             path = self._timed(self._swing_path(peg, tcp_in_peg, x_max), start, min_steps=4)
@@ -234,6 +176,7 @@ class LiftPegUprightPlanner:
                 best = path
             if path.ik.ok():
                 break
+        assert best is not None
         if not best.ik.ok():
             self.failure = "ik"
         steps = steps_from(best, CLOSED, "swing")
@@ -275,7 +218,7 @@ class LiftPegUprightPlanner:
         """Hold the peg upright at its goal height. If it has slipped or turned in the hand, move the hand by the
         correction that would bring the peg, held as it is now, upright at the goal height."""
         start = self._last()
-        peg, tcp = self._peg(), self._tcp()
+        peg = self._object_pose()
         axis = peg[:3, 0] if peg[2, 0] >= 0 else -peg[:3, 0]
         height_error = PEG_HALF_LENGTH + self.cfg.set_down_clearance - peg[2, 3]
         tilt = tilt_from_vertical(axis)
@@ -284,7 +227,7 @@ class LiftPegUprightPlanner:
         if tilt > self.cfg.max_correctable_tilt:
             return self._fail("tilted")
         rotvec = np.cross(axis, [0.0, 0.0, 1.0])
-        rotvec *= tilt / max(np.linalg.norm(rotvec), 1e-12)
+        rotvec *= tilt / max(float(np.linalg.norm(rotvec)), 1e-12)
         goal = make_pose(axis_angle_to_matrix(rotvec) @ peg[:3, :3], peg[:3, 3] + [0.0, 0.0, height_error])
         correction = goal @ np.linalg.inv(peg)  # applied to the peg, and to the hand holding it
         target = correction @ start.tcp  # the hand moves with the peg: same world transform

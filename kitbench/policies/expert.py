@@ -1,41 +1,37 @@
-"""The expert: each task's motion planner, usable as a policy in any control mode."""
+"""The expert: each task's own scripted planner (`make_expert()`), usable as a policy in any control mode."""
 
 from __future__ import annotations
 
-import importlib
+from typing import Any
 
+from kitbench.errors import KitbenchError
 from kitbench.policies.convert import joint_target_to_action
-
-PLANNERS = {
-    "LiftPegUprightEnv": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner",
-    "AssemblingKitsEnv": "kitbench.planning.assembling_kits:AssemblingKitsPlanner",
-}
+from kitbench.registration import TASKS
 
 
-def has_expert(env) -> bool:
-    return type(env.unwrapped).__name__ in PLANNERS
-
-
-def planner_class(env):
-    name = type(env.unwrapped).__name__
-    if name not in PLANNERS:
-        raise ValueError(f"no expert planner for {name}; tasks with an expert: {', '.join(PLANNERS)}")
-    module, cls = PLANNERS[name].split(":")
-    return getattr(importlib.import_module(module), cls)
+def check_has_expert(env) -> None:
+    """Refuse a task that declares no expert, naming those that do."""
+    u = env.unwrapped
+    if not u.has_expert():
+        with_expert = [name for name, entry in TASKS.items() if entry.env_class.has_expert()]
+        raise KitbenchError(
+            f"task {u.task_id} has no expert planner; tasks with an expert: {', '.join(with_expert) or '(none)'}"
+        )
 
 
 class ExpertPolicy:
-    """Runs the planner (which plans joint-position targets) and expresses each target in the env's mode."""
+    """Runs the task's planner (which plans joint-position targets) and expresses each target in the env's mode."""
 
     name = "expert"
 
     def __init__(self):
-        self.planner = None
+        self.planner: Any = None  # the task's expert, built at each reset
         self._env = None
 
     def reset(self, env, seed, obs, info):
+        check_has_expert(env)
         self._env = env
-        self.planner = planner_class(env)(env)
+        self.planner = env.unwrapped.make_expert()
         self.planner.reset(obs, info)
 
     def act(self, obs):

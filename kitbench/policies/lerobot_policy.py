@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.recording.rollout import robot_state
+from kitbench.envs.features import IMAGES, observation_features
+from kitbench.errors import KitbenchError
+from kitbench.metadata import read_recording_settings
 
 
 def _resolve(path: str) -> Path:
@@ -20,17 +22,18 @@ def _resolve(path: str) -> Path:
     for candidate in (p, p / "pretrained_model", p / "checkpoints" / "last" / "pretrained_model"):
         if (candidate / "config.json").is_file() and (candidate / "model.safetensors").is_file():
             return candidate
-    raise ValueError(f"no lerobot checkpoint at {path} (looked for config.json and model.safetensors in it, "
-                     f"in pretrained_model/ and in checkpoints/last/pretrained_model/)")
+    raise KitbenchError(
+        f"no lerobot checkpoint at {path} (looked for config.json and model.safetensors in it, "
+        f"in pretrained_model/ and in checkpoints/last/pretrained_model/)"
+    )
 
 
 def env_features(env) -> dict[str, tuple[int, ...]]:
-    """What a kitbench env provides, under dataset names."""
-    u = env.unwrapped
-    provided = {"observation.state": (8,), "observation.environment_state": tuple(u.environment_state().shape)}
-    for cam in u.camera_names:
-        spec = u._cameras[cam].spec
-        provided[f"observation.images.{cam}"] = (3, spec.height, spec.width)
+    """What a kitbench env provides, under dataset names, in the shapes a policy sees (images channels first)."""
+    provided = {}
+    for name, feature in observation_features(env).items():
+        shape = tuple(feature["shape"])
+        provided[name] = (shape[2], shape[0], shape[1]) if name.startswith(IMAGES) else shape
     return provided
 
 
@@ -43,11 +46,9 @@ def trained_control_mode(checkpoint: Path) -> str | None:
     train = json.loads(path.read_text())
     root = (train.get("dataset") or {}).get("root")
     if root:
-        from kitbench.recording.dataset import RECORDING_FILE
-
-        recording = Path(root) / RECORDING_FILE
-        if recording.is_file():
-            return json.loads(recording.read_text()).get("control_mode")
+        recording = read_recording_settings(root)
+        if recording is not None:
+            return recording.get("control_mode")
     env = train.get("env") or {}
     return env.get("control_mode") if env.get("type") == "kitbench" else None
 
@@ -70,7 +71,8 @@ class LeRobotPolicy:
         self.config = cfg
         self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         self.pre, self.post = make_pre_post_processors(
-            cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
+            cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+        )
         self._torch = torch
         self.name = f"lerobot:{checkpoint}"
         self.control_mode = trained_control_mode(path)
@@ -95,10 +97,11 @@ class LeRobotPolicy:
             exp = ", ".join(f"{k}{list(v)}" for k, v in sorted(expected.items()))
             prov = ", ".join(f"{k}{list(v)}" for k, v in sorted(provided.items()))
             act = list(action.shape) if action is not None else None
-            raise ValueError(
+            raise KitbenchError(
                 f"policy does not fit the env (mismatched: {', '.join(problems)}); policy expects {exp} and "
                 f"action{act}; env provides {prov} and action{list(env.unwrapped.action_space.shape)} "
-                f"({env.unwrapped.control_mode})")
+                f"({env.unwrapped.control_mode})"
+            )
 
     def reset(self, env, seed, obs, info):
         self.check(env)
@@ -110,13 +113,15 @@ class LeRobotPolicy:
         torch = self._torch
         u = self._env.unwrapped
         batch = {
-            "observation.state": torch.from_numpy(robot_state(u)),
+            "observation.state": torch.from_numpy(u.robot_state()),
             "observation.environment_state": torch.from_numpy(u.environment_state()),
             "task": u.task_description(),
         }
         for cam in u.camera_names:
             rgb = obs["sensor_data"][cam]["rgb"]
-            batch[f"observation.images.{cam}"] = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0
+            batch[f"observation.images.{cam}"] = (
+                torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0
+            )
         return {k: v for k, v in batch.items() if k == "task" or k in self.config.input_features}
 
     def act(self, obs):

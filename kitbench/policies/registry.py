@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from kitbench.errors import KitbenchError
+
 BUILTIN = ("expert", "random", "zero")
 
 
@@ -22,11 +24,13 @@ def make_policy(spec: str):
     if spec.startswith("replay:"):
         from kitbench.policies.replay import ReplayPolicy
 
-        root, _, episode = spec[len("replay:"):].partition(":")
+        root, _, episode = spec[len("replay:") :].partition(":")
         return ReplayPolicy(root, int(episode) if episode else None)
     if spec.startswith("lerobot:"):
         from kitbench.policies.lerobot_policy import LeRobotPolicy
 
-        return LeRobotPolicy(spec[len("lerobot:"):])
-    raise ValueError(f"unknown policy {spec!r}; valid choices: {', '.join(BUILTIN)}, replay:<dataset>[:episode], "
-                     f"lerobot:<checkpoint>")
+        return LeRobotPolicy(spec[len("lerobot:") :])
+    raise KitbenchError(
+        f"unknown policy {spec!r}; valid choices: {', '.join(BUILTIN)}, replay:<dataset>[:episode], "
+        f"lerobot:<checkpoint>"
+    )

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import warnings
 from pathlib import Path
 
 import numpy as np
 
+from kitbench.errors import KitbenchError
+from kitbench.metadata import read_recording_settings
 from kitbench.policies.convert import joint_target_to_action
 
 
@@ -23,15 +24,19 @@ class ReplayPolicy:
         self.root = Path(root)
         files = sorted((self.root / "data").rglob("*.parquet"))
         if not files:
-            raise ValueError(f"no LeRobot dataset at {root} (no data/*/*.parquet)")
-        frames = pd.concat([pd.read_parquet(f, columns=["episode_index", "frame_index", "action", "episode_seed"])
-                            for f in files]).sort_values(["episode_index", "frame_index"])
-        self._actions = {int(e): np.stack(g["action"].to_numpy()).astype(np.float32)
-                         for e, g in frames.groupby("episode_index")}
+            raise KitbenchError(f"no LeRobot dataset at {root} (no data/*/*.parquet)")
+        frames = pd.concat(
+            [pd.read_parquet(f, columns=["episode_index", "frame_index", "action", "episode_seed"]) for f in files]
+        ).sort_values(["episode_index", "frame_index"])
+        self._actions = {
+            int(e): np.stack(g["action"].to_numpy()).astype(np.float32) for e, g in frames.groupby("episode_index")
+        }
         # lerobot stores a (1,)-shaped feature as a plain column: a scalar per frame
-        self._by_seed = {int(np.ravel(g["episode_seed"].iloc[0])[0]): int(e) for e, g in frames.groupby("episode_index")}
+        self._by_seed = {
+            int(np.ravel(g["episode_seed"].iloc[0])[0]): int(e) for e, g in frames.groupby("episode_index")
+        }
         if episode is not None and episode not in self._actions:
-            raise ValueError(f"episode {episode} not in {root}; valid choices: 0..{len(self._actions) - 1}")
+            raise KitbenchError(f"episode {episode} not in {root}; valid choices: 0..{len(self._actions) - 1}")
         self.episode = episode
         self.name = f"replay:{root}" + (f":{episode}" if episode is not None else "")
         self._recording = self._recording_settings()
@@ -39,17 +44,17 @@ class ReplayPolicy:
     def _recording_settings(self) -> dict:
         """kitbench's settings of the recording ({} for a dataset kitbench did not record)."""
         import kitbench
-        from kitbench.recording.dataset import RECORDING_FILE
 
-        path = self.root / RECORDING_FILE
-        if not path.is_file():
+        settings = read_recording_settings(self.root)
+        if settings is None:
             return {}
-        settings = json.loads(path.read_text())
         version = settings.get("kitbench_version")
         if version != kitbench.__version__:
-            warnings.warn(f"{self.root} was recorded with kitbench {version or 'before 0.2.0'}, this is "
-                          f"{kitbench.__version__}: physics or assets may differ, so replays may not reproduce it",
-                          stacklevel=3)
+            warnings.warn(
+                f"{self.root} was recorded with kitbench {version or 'before 0.2.0'}, this is "
+                f"{kitbench.__version__}: physics or assets may differ, so replays may not reproduce it",
+                stacklevel=3,
+            )
         return settings
 
     def requirements(self) -> dict:
@@ -60,15 +65,22 @@ class ReplayPolicy:
         episode = self.episode if self.episode is not None else self._by_seed.get(seed)
         if episode is None:
             seeds = sorted(self._by_seed)
-            hint = (f" (evaluate them with --seed {seeds[0]} --episodes {len(seeds)})"
-                    if seeds == list(range(seeds[0], seeds[0] + len(seeds))) else "")
-            raise ValueError(f"{self.root} has no episode recorded with seed {seed}; recorded seeds: {seeds[:10]}"
-                             f"{'...' if len(seeds) > 10 else ''}{hint}")
+            hint = (
+                f" (evaluate them with --seed {seeds[0]} --episodes {len(seeds)})"
+                if seeds == list(range(seeds[0], seeds[0] + len(seeds)))
+                else ""
+            )
+            raise KitbenchError(
+                f"{self.root} has no episode recorded with seed {seed}; recorded seeds: {seeds[:10]}"
+                f"{'...' if len(seeds) > 10 else ''}{hint}"
+            )
         self._env = env
         self._queue = list(self._actions[episode])
         if self._queue and self._queue[0].shape != env.unwrapped.action_space.shape:
-            raise ValueError(f"recorded actions have shape {self._queue[0].shape}; the env's "
-                             f"{env.unwrapped.control_mode} expects {env.unwrapped.action_space.shape}")
+            raise KitbenchError(
+                f"recorded actions have shape {self._queue[0].shape}; the env's "
+                f"{env.unwrapped.control_mode} expects {env.unwrapped.action_space.shape}"
+            )
 
     def act(self, obs):
         if self._queue:

@@ -20,11 +20,13 @@ import shutil
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-EPISODES_FILE = "meta/kitbench_episodes.jsonl"
-RECORDING_FILE = "meta/kitbench_recording.json"
+from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+
+__all__ = ["EPISODES_FILE", "RECORDING_FILE", "DatasetWriter", "recover"]
 SESSION_SUFFIX = ".session"
 RETIRED_SUFFIX = ".retired"
 
@@ -80,15 +82,17 @@ def _quiet_encoders() -> None:
     libav's level is set too, in every libavutil this process has loaded.
     """
     import av.logging
+
     import datasets
 
     av.logging.set_level(av.logging.ERROR)
-    datasets.disable_progress_bars()
+    datasets.disable_progress_bars()  # type: ignore[attr-defined]  # exported by datasets' lazy __init__
     # lerobot wraps some table operations in a context that re-enables the bars on exit, after which every
     # episode but the first printed a "Map" bar. Pinning them off is what HF_DATASETS_DISABLE_PROGRESS_BARS=1
     # does when set before `datasets` is imported; enabling then only warns, which is silenced here. (The
     # module is looked up by name: `datasets.utils.tqdm` the attribute is its tqdm class.)
-    importlib.import_module("datasets.utils.tqdm").HF_DATASETS_DISABLE_PROGRESS_BARS = True
+    tqdm_module: Any = importlib.import_module("datasets.utils.tqdm")
+    tqdm_module.HF_DATASETS_DISABLE_PROGRESS_BARS = True
     warnings.filterwarnings("ignore", message="Cannot enable progress bars", category=UserWarning)
     try:
         with open("/proc/self/maps") as maps:
@@ -109,7 +113,7 @@ class DatasetWriter:
         self.features = features
         self.robot_type = robot_type
         self.recording = recording
-        self._session = None  # LeRobotDataset being written in the session folder
+        self._session: Any = None  # LeRobotDataset being written in the session folder (lerobot is untyped)
         self._pending: list[dict] = []  # kitbench metadata of episodes in the open session
         self._session_started = 0.0
         _quiet_encoders()
@@ -138,8 +142,13 @@ class DatasetWriter:
             self._session = LeRobotDataset.resume(self.repo_id, root=session, rgb_encoder=_video_encoder())
         else:
             self._session = LeRobotDataset.create(
-                self.repo_id, fps=self.fps, features=self.features, root=session, robot_type=self.robot_type,
-                use_videos=True, rgb_encoder=_video_encoder(),
+                self.repo_id,
+                fps=self.fps,
+                features=self.features,
+                root=session,
+                robot_type=self.robot_type,
+                use_videos=True,
+                rgb_encoder=_video_encoder(),
             )
         self._session_started = time.monotonic()
 
@@ -151,12 +160,22 @@ class DatasetWriter:
         index = ds.meta.total_episodes
         seed = np.array([record.seed], dtype=np.int64)
         for frame in record.frames:
-            ds.add_frame({**{k: v for k, v in frame.items() if k in self.features}, "episode_seed": seed,
-                          "task": record.task})
+            ds.add_frame(
+                {**{k: v for k, v in frame.items() if k in self.features}, "episode_seed": seed, "task": record.task}
+            )
         ds.save_episode()
-        self._pending.append({"episode_index": index, "seed": record.seed, "success": record.success,
-                              "length": record.length, "first_success": record.first_success, "task": record.task,
-                              **record.config, **extra})
+        self._pending.append(
+            {
+                "episode_index": index,
+                "seed": record.seed,
+                "success": record.success,
+                "length": record.length,
+                "first_success": record.first_success,
+                "task": record.task,
+                **record.config,
+                **extra,
+            }
+        )
         return index
 
     def session_age(self) -> float:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
@@ -26,8 +27,10 @@ WORLD = "world"
 JSON_TOPICS = {
     "/action": {"type": "object", "properties": {"action": {"type": "array", "items": {"type": "number"}}}},
     "/reward": {"type": "object", "properties": {"reward": {"type": "number"}, "success": {"type": "boolean"}}},
-    "/planner": {"type": "object", "properties": {"phase": {"type": "string"},
-                                                  "tcp_target": {"type": "array", "items": {"type": "number"}}}},
+    "/planner": {
+        "type": "object",
+        "properties": {"phase": {"type": "string"}, "tcp_target": {"type": "array", "items": {"type": "number"}}},
+    },
 }
 
 
@@ -40,8 +43,9 @@ class EpisodeMcap:
 
     def __init__(self, path: Path, cameras: tuple[str, ...] = (), jpeg_quality: int = 90):
         self.path = Path(path)
-        self._file = open(self.path, "wb")
-        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        stream = open(self.path, "wb")  # noqa: SIM115  (closed by close(), which the context manager calls)
+        self._file: BinaryIO | None = stream
+        self._writer = Writer(stream, compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="kitbench")
         self._jpeg_quality = jpeg_quality
         self._channels: dict[str, int] = {}
@@ -59,9 +63,21 @@ class EpisodeMcap:
         self._writer.add_message(self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data)
         self.messages[topic] += 1
 
-    def log_step(self, t_ns: int, *, frames: dict[str, tuple[np.ndarray, np.ndarray]], joint_names, qpos, qvel,
-                 images: dict[str, np.ndarray], action, reward: float, success: bool, phase: str | None = None,
-                 tcp_target: np.ndarray | None = None) -> None:
+    def log_step(
+        self,
+        t_ns: int,
+        *,
+        frames: dict[str, tuple[np.ndarray, np.ndarray]],
+        joint_names,
+        qpos,
+        qvel,
+        images: dict[str, np.ndarray],
+        action,
+        reward: float,
+        success: bool,
+        phase: str | None = None,
+        tcp_target: np.ndarray | None = None,
+    ) -> None:
         """One control step. `frames` maps a child frame to its world (position, wxyz quaternion)."""
         stamp = _stamp(t_ns)
         tf = FrameTransforms()
@@ -72,7 +88,7 @@ class EpisodeMcap:
             tf.transforms.append(t)
         self._write("/tf", tf.SerializeToString(), t_ns)
         js = JointStates(timestamp=stamp)
-        for name, position, velocity in zip(joint_names, qpos, qvel):
+        for name, position, velocity in zip(joint_names, qpos, qvel, strict=True):
             js.joints.append(JointState(name=name, position=float(position), velocity=float(velocity)))
         self._write("/joint_states", js.SerializeToString(), t_ns)
         for camera, rgb in images.items():

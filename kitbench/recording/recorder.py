@@ -18,7 +18,9 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from kitbench.registration import TASKS
+from kitbench.errors import KitbenchError
+from kitbench.metadata import RECORDING_FILE
+from kitbench.registration import task_entry
 
 MCAP_DIR = "mcap"
 
@@ -64,18 +66,20 @@ def load_recipe(path: Path, **overrides) -> RecordConfig:
     """A TOML recipe: the same keys as the command line's long options (`[record]` table or top level)."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"recipe {path} does not exist")
+        raise KitbenchError(f"recipe {path} does not exist")
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"recipe {path}: invalid TOML: {exc}") from exc
+        raise KitbenchError(f"recipe {path}: invalid TOML: {exc}") from exc
     data = data.get("record", data)
     unknown = sorted(set(data) - RECIPE_KEYS)
     if unknown:
-        raise ValueError(f"recipe {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(sorted(RECIPE_KEYS))}")
+        raise KitbenchError(
+            f"recipe {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(sorted(RECIPE_KEYS))}"
+        )
     for key in ("task", "episodes", "out"):
         if key not in data and key not in overrides:
-            raise ValueError(f"recipe {path}: missing required key {key!r}")
+            raise KitbenchError(f"recipe {path}: missing required key {key!r}")
     data.update({k: v for k, v in overrides.items() if v is not None})
     data["out"] = Path(data["out"])
     return RecordConfig(**data)
@@ -83,41 +87,40 @@ def load_recipe(path: Path, **overrides) -> RecordConfig:
 
 def validate(config: RecordConfig) -> None:
     """Every check that can fail before a file is written."""
-    if config.task not in TASKS:
-        raise ValueError(f"unknown task {config.task!r}; valid choices: {', '.join(TASKS)}")
+    task_entry(config.task)
     if config.obs_mode not in OBS_MODES_RECORDABLE:
-        raise ValueError(f"unknown obs_mode {config.obs_mode!r} for recording; valid choices: {', '.join(OBS_MODES_RECORDABLE)}")
+        raise KitbenchError(
+            f"unknown obs_mode {config.obs_mode!r} for recording; valid choices: {', '.join(OBS_MODES_RECORDABLE)}"
+        )
     if not isinstance(config.episodes, int) or config.episodes < 1:
-        raise ValueError(f"episodes must be a positive integer, got {config.episodes!r}")
+        raise KitbenchError(f"episodes must be a positive integer, got {config.episodes!r}")
     if not isinstance(config.workers, int) or config.workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {config.workers!r}")
+        raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
     if config.resume and config.overwrite:
-        raise ValueError("--resume and --overwrite exclude each other")
+        raise KitbenchError("--resume and --overwrite exclude each other")
     out = config.out
     if out.exists() and not (config.resume or config.overwrite):
-        raise ValueError(f"output folder {out} exists; pass --resume to continue it or --overwrite to replace it")
+        raise KitbenchError(f"output folder {out} exists; pass --resume to continue it or --overwrite to replace it")
     if config.resume and out.exists():
         import json
 
-        from kitbench.recording.dataset import RECORDING_FILE
-
         saved_path = out / RECORDING_FILE
         if not saved_path.is_file():
-            raise ValueError(f"cannot resume {out}: it is not a kitbench recording ({RECORDING_FILE} missing)")
+            raise KitbenchError(f"cannot resume {out}: it is not a kitbench recording ({RECORDING_FILE} missing)")
         saved = json.loads(saved_path.read_text())
         mismatched = {k: (saved.get(k), v) for k, v in config.identity().items() if saved.get(k) != v}
         if mismatched:
             detail = ", ".join(f"{k}: recorded {a!r}, asked {b!r}" for k, (a, b) in mismatched.items())
-            raise ValueError(f"cannot resume {out} with different settings ({detail})")
+            raise KitbenchError(f"cannot resume {out} with different settings ({detail})")
     env = make_recording_env(config)  # raises on a bad control mode, robot or task setting
     try:
         from kitbench.policies.registry import make_policy
 
         policy = make_policy(config.policy)
         if config.policy == "expert":
-            from kitbench.policies.expert import planner_class
+            from kitbench.policies.expert import check_has_expert
 
-            planner_class(env)
+            check_has_expert(env)
         del policy
     finally:
         env.close()
@@ -192,9 +195,14 @@ class Summary:
         per_min = 60.0 * self.attempted / self.seconds if self.seconds > 0 else 0.0
         lines = [
             f"dataset: {out}",
-            f"episodes stored: {self.stored} (attempted {self.attempted}, success rate {rate:.1%}"
-            + (f", {self.failures_dropped} failed attempts not stored)" if self.failures_dropped else ")"),
-            f"frames: {self.frames}   speed: {per_min:.1f} episodes/min, {self.frames / max(self.seconds, 1e-9):.0f} frames/s",
+            (
+                f"episodes stored: {self.stored} (attempted {self.attempted}, success rate {rate:.1%}"
+                + (f", {self.failures_dropped} failed attempts not stored)" if self.failures_dropped else ")")
+            ),
+            (
+                f"frames: {self.frames}   speed: {per_min:.1f} episodes/min, "
+                f"{self.frames / max(self.seconds, 1e-9):.0f} frames/s"
+            ),
             f"size on disk: {self.size_bytes / 2**20:.1f} MiB",
         ]
         if self.interrupted:
@@ -223,9 +231,10 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     env.reset(seed=config.seed)
     features = dataset_features(env)
     fps = env.unwrapped.sim_config.control_freq
+    robot_uid = env.unwrapped.robot_uid
     env.close()
     recording = {**config.identity(), "repo_id": config.dataset_repo_id, "fps": fps}
-    writer = DatasetWriter(out, config.dataset_repo_id, fps, features, "panda", recording)
+    writer = DatasetWriter(out, config.dataset_repo_id, fps, features, robot_uid, recording)
     summary = Summary(stored=len(committed))
     remaining = config.episodes - len(committed)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.geometry import matrix_to_quat, yaw_quat
+from kitbench.geometry import matrix_to_quat
 from kitbench.recording.mcap_log import EpisodeMcap
 
 
@@ -30,12 +30,6 @@ class EpisodeRecord:
         return len(self.frames)
 
 
-def robot_state(u) -> np.ndarray:
-    """7 arm joint positions and the gripper opening (sum of the two finger joints, metres)."""
-    q = u.robot.qpos()
-    return np.append(q[:7], q[7] + q[8]).astype(np.float32)
-
-
 def commanded_tcp_pose(u) -> np.ndarray:
     """The TCP pose the controller is driving to, base frame [x, y, z, qw, qx, qy, qz], in every mode."""
     controller = u.controller
@@ -50,14 +44,9 @@ def task_config(u) -> dict:
 
 
 def _world_frames(u) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The robot's links and the task's tracked frames (objects, goals), world poses."""
     frames = {link.name: (link.entity_pose.p, link.entity_pose.q) for link in u.robot.articulation.links}
-    for name in ("peg", "obj", "board"):
-        actor = getattr(u, name, None)
-        if actor is not None:
-            frames[actor.name] = (actor.pose.p, actor.pose.q)
-    goal = getattr(u, "goal_pos", None)
-    if goal is not None:
-        frames["goal"] = (goal, yaw_quat(u.goal_rot))
+    frames.update(u.tracked_frames())
     return frames
 
 
@@ -68,12 +57,12 @@ def run_episode(env, policy, seed: int, mcap_path: Path | None = None) -> Episod
     record = EpisodeRecord(seed=seed, task=u.task_description(), config=task_config(u))
     log = EpisodeMcap(mcap_path, u.camera_names) if mcap_path is not None else None
     joint_names = [j.name for j in u.robot.articulation.active_joints]
-    dt_ns = int(round(1e9 * u.control_timestep))
+    dt_ns = round(1e9 * u.control_timestep)
     try:
         step = 0
         while True:
             frame = {
-                "observation.state": robot_state(u),
+                "observation.state": u.robot_state(),
                 "observation.environment_state": u.environment_state(),
             }
             images = {}
@@ -91,12 +80,19 @@ def run_episode(env, policy, seed: int, mcap_path: Path | None = None) -> Episod
             record.frames.append(frame)
             record.infos.append(info)
             if log is not None:
-                log.log_step((step + 1) * dt_ns, frames=_world_frames(u), joint_names=joint_names,
-                             qpos=u.robot.qpos(), qvel=u.robot.qvel(),
-                             images={c: obs["sensor_data"][c]["rgb"] for c in u.camera_names},
-                             action=frame["action"], reward=reward, success=bool(info["success"]),
-                             phase=getattr(policy, "phase", None) or "policy",
-                             tcp_target=getattr(policy, "tcp_target", None))
+                log.log_step(
+                    (step + 1) * dt_ns,
+                    frames=_world_frames(u),
+                    joint_names=joint_names,
+                    qpos=u.robot.qpos(),
+                    qvel=u.robot.qvel(),
+                    images={c: obs["sensor_data"][c]["rgb"] for c in u.camera_names},
+                    action=frame["action"],
+                    reward=reward,
+                    success=bool(info["success"]),
+                    phase=getattr(policy, "phase", None) or "policy",
+                    tcp_target=getattr(policy, "tcp_target", None),
+                )
             if info["success"] and record.first_success is None:
                 record.first_success = step
             step += 1

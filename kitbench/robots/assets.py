@@ -18,7 +18,8 @@ _PANDA_SUBDIR = "cmeel.prefix/share/example-robot-data/robots/panda_description"
 def panda_description_dir() -> Path:
     """The installed `panda_description` folder (URDF, SRDF, meshes)."""
     try:
-        root = Path(distribution("example-robot-data").locate_file(_PANDA_SUBDIR))
+        # str(): typeshed types locate_file's result as a SimplePath, which Path() does not accept.
+        root = Path(str(distribution("example-robot-data").locate_file(_PANDA_SUBDIR)))
     except PackageNotFoundError as exc:  # pragma: no cover - install problem
         raise RuntimeError("example-robot-data is not installed; run `make test` or `uv sync`") from exc
     if not (root / "urdf" / "panda.urdf").is_file():  # pragma: no cover - install problem

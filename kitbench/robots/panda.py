@@ -25,6 +25,12 @@ FINGER_LINKS = ("panda_leftfinger", "panda_rightfinger")
 READY_ARM_QPOS = np.array([0.0, np.pi / 8, 0.0, -5 * np.pi / 8, 0.0, 3 * np.pi / 4, np.pi / 4])
 FINGER_OPEN = 0.04
 FINGER_CLOSED = -0.01  # below the joint limit, so a closed hand keeps squeezing a thin object
+# Width of a finger pad across the closing direction (the fingertip collision boxes are 1.8 cm wide); pass it
+# as `pad_width` to the grasp helpers in kitbench.kits.shapes.
+FINGER_PAD_WIDTH = 0.018
+# The kit shapes are designed so that each has a closing direction through its centroid needing at most this
+# opening, a bit over half of what the open hand spans (2 * FINGER_OPEN); tests/test_kit_physics.py checks it.
+MAX_GRASP_WIDTH = 0.045
 
 
 @dataclass(frozen=True)
@@ -164,7 +170,7 @@ class Panda:
         self.set_targets(arm_qpos, finger)
 
     def set_targets(self, arm_targets, finger_target: float) -> None:
-        for joint, target in zip(self.arm_joints, arm_targets):
+        for joint, target in zip(self.arm_joints, arm_targets, strict=True):
             joint.set_drive_target(float(target))
         for joint in self.finger_joints:
             joint.set_drive_target(float(finger_target))

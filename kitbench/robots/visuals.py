@@ -55,7 +55,7 @@ def _write_obj(path: Path, parts: list[tuple[np.ndarray, np.ndarray, tuple[float
 def _weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge coincident vertices: the meshes split vertices per face, which decimation cannot collapse."""
     keys = np.round(vertices / 1e-6).astype(np.int64)
-    unique, index, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    _, index, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     return vertices[index], inverse.reshape(-1)[faces]
 
 
@@ -65,8 +65,9 @@ def _decimate(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
     vertices, faces = _weld(vertices, faces)
     if len(faces) < 200:
         return vertices, faces
-    v, f = fast_simplification.simplify(vertices.astype(np.float32), faces.astype(np.int64),
-                                        target_reduction=1.0 - KEEP_FRACTION)
+    v, f = fast_simplification.simplify(
+        vertices.astype(np.float32), faces.astype(np.int64), target_reduction=1.0 - KEEP_FRACTION
+    )
     return v, f
 
 
@@ -84,7 +85,7 @@ def lightweight_mesh(source: str) -> str:
     parts = []
     for part in shape.parts:
         v, f = _decimate(np.asarray(part.get_vertices()), np.asarray(part.get_triangles()))
-        color = tuple(float(c) for c in part.material.base_color[:3])
-        parts.append((v, f, color))
+        r, g, b = (float(c) for c in part.material.base_color[:3])
+        parts.append((v, f, (r, g, b)))
     _write_obj(target, parts)
     return str(target)

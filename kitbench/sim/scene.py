@@ -12,6 +12,8 @@ import numpy as np
 import sapien
 from sapien import physx
 
+from kitbench.errors import KitbenchError
+
 TABLE_HALF_SIZE = (0.9, 0.6, 0.46)  # a 1.8 x 1.2 m table, 0.92 m tall
 TABLE_CENTER = (-0.12, 0.0)
 GROUND_Z = -0.92
@@ -38,11 +40,9 @@ class SimConfig:
 
     def __post_init__(self):
         if self.sim_freq <= 0 or self.control_freq <= 0:
-            raise ValueError(f"sim_freq and control_freq must be positive, got {self.sim_freq}, {self.control_freq}")
+            raise KitbenchError(f"sim_freq and control_freq must be positive, got {self.sim_freq}, {self.control_freq}")
         if self.sim_freq % self.control_freq:
-            raise ValueError(
-                f"sim_freq ({self.sim_freq}) must be a multiple of control_freq ({self.control_freq})"
-            )
+            raise KitbenchError(f"sim_freq ({self.sim_freq}) must be a multiple of control_freq ({self.control_freq})")
 
     @property
     def substeps(self) -> int:

@@ -1,5 +1,5 @@
 """Gymnasium ids `gym_kitbench/<Task>` with LeRobot's observation names (lerobot imports `gym_<env.type>`)."""
 
-from kitbench.integrations.lerobot_env import register_lerobot_envs
+from lerobot_env_kitbench.env import register_lerobot_envs
 
 register_lerobot_envs()

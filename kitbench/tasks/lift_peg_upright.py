@@ -13,9 +13,11 @@ import numpy as np
 import sapien
 from sapien import physx
 
+from kitbench.envs.grasp import GraspHistory
 from kitbench.envs.observations import pose7
 from kitbench.envs.tabletop import TabletopEnv
 from kitbench.geometry import quat_to_matrix, tilt_from_vertical
+from kitbench.registration import register_env
 from kitbench.sim.cameras import CameraSpec
 from kitbench.sim.scene import set_actor_pose
 
@@ -54,17 +56,34 @@ def build_peg(scene: sapien.Scene, render: bool) -> sapien.Entity:
     return builder.build(name="peg")
 
 
+@register_env("LiftPegUpright-v1", max_episode_steps=50)
 class LiftPegUprightEnv(TabletopEnv):
     """Move a peg lying on the table to an upright position on the table (50 control steps)."""
 
     supported_robots = ("panda",)
-    max_episode_steps = 50
     max_dense_reward = 3.0
     default_qpos_noise = 0.02
     environment_state_keys = ("peg_pose",)
+    success_criteria = ("upright", "at_height")
+    failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
+    expert = "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"
 
     def _load_task(self, scene, render):
         self.peg = build_peg(scene, render)
+
+    @property
+    def target_object(self):
+        return self.peg
+
+    def failure_category(self, info: dict, grasp: GraspHistory) -> str | None:
+        """Stages: grasp, keep holding, turn upright, set at the right height."""
+        if info["success"]:
+            return None
+        if not grasp.ever_grasped:
+            return "never_grasped"
+        if not grasp.held_at_end:
+            return "dropped"
+        return "not_upright" if not info["upright"] else "wrong_height"
 
     def task_description(self) -> str:
         return "Pick up the peg lying on the table and stand it upright on the table."
@@ -79,14 +98,20 @@ class LiftPegUprightEnv(TabletopEnv):
     def evaluate(self):
         pose = self.peg.pose
         success, tilt, z_error = peg_success(pose.p, pose.q)
-        return {"success": success, "tilt": tilt, "z_error": z_error}
+        return {
+            "success": success,
+            "upright": tilt < MAX_TILT,
+            "at_height": z_error < MAX_Z_ERROR,
+            "tilt": tilt,
+            "z_error": z_error,
+        }
 
-    def _task_state(self, info):
+    def task_state(self):
         return {"peg_pose": pose7(self.peg.pose)}
 
     def compute_dense_reward(self, info):
         if info["success"]:
-            return 3.0
+            return self.max_dense_reward
         pose = self.peg.pose
         upright = math.cos(info["tilt"])  # |peg axis . z|
         height = 1.0 - math.tanh(5.0 * info["z_error"])

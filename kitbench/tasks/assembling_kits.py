@@ -24,10 +24,13 @@ from sapien import physx
 from shapely import affinity
 from shapely.geometry import box as shapely_box
 
+from kitbench.envs.grasp import GraspHistory
 from kitbench.envs.observations import pose7
 from kitbench.envs.tabletop import TabletopEnv
+from kitbench.errors import KitbenchError
 from kitbench.geometry import planar_yaw, quat_to_matrix, yaw_quat
-from kitbench.kits import EpisodeSet, load_episodes, shape_geometry
+from kitbench.kits import Episode, EpisodeSet, load_episodes, shape_geometry
+from kitbench.registration import register_env
 from kitbench.sim.actors import build_convex_actor
 from kitbench.sim.cameras import CameraSpec
 
@@ -52,6 +55,7 @@ BOARD_CACHE_SIZE = 32
 # (6 mm per pair, still above what a held shape moves in one substep) every default kit's target drops in
 # (docs/kit-physics.md).
 KIT_CONTACT_OFFSET = 0.003
+NEAR_SLOT = 0.05  # m: a shape this close to its goal was brought to the kit, whatever else went wrong
 
 
 def yaw_error(yaw: float, goal_yaw: float, symmetry: float) -> float:
@@ -67,18 +71,22 @@ def _load(path: str | None) -> EpisodeSet:
     return load_episodes(path)
 
 
+@register_env("AssemblingKits-v1", max_episode_steps=200)
 class AssemblingKitsEnv(TabletopEnv):
     """Insert a misplaced shape into its slot in a kit (200 control steps, robot with a wrist camera)."""
 
     supported_robots = ("panda_wristcam",)
-    max_episode_steps = 200
     max_dense_reward = MAX_DENSE_REWARD
     default_qpos_noise = 0.02
     environment_state_keys = ("obj_pose", "goal_pos", "goal_rot", "shape_id", "symmetry")
+    success_criteria = ("pos_correct", "rot_correct", "in_slot")
+    failure_categories = ("never_grasped", "dropped", "not_transported", "misaligned", "not_inserted")
+    report_groups = ("shape_id", "shape")
+    expert = "kitbench.planning.assembling_kits:AssemblingKitsPlanner"
 
     def __init__(self, *args, episode_file: str | Path | None = None, **kwargs):
         self.episodes = _load(str(episode_file) if episode_file is not None else None)
-        self.episode = None
+        self.episode: Episode  # chosen by every reset (the first runs in TabletopEnv.__init__)
         self.episode_index = -1
         self._boards: OrderedDict = OrderedDict()  # episode index -> BoardGeometry, least recently used last
         super().__init__(*args, **kwargs)
@@ -89,8 +97,35 @@ class AssemblingKitsEnv(TabletopEnv):
 
     def episode_config(self) -> dict:
         """`kit_episode` indexes the episode file; `kit_id` is the file's own id for that kit."""
-        return {"kit_id": int(self.episode.kit_id), "kit_episode": int(self.episode_index),
-                "shape_id": int(self.shape.shape_id), "shape": self.shape.name}
+        return {
+            "kit_id": int(self.episode.kit_id),
+            "kit_episode": int(self.episode_index),
+            "shape_id": int(self.shape.shape_id),
+            "shape": self.shape.name,
+        }
+
+    @property
+    def target_object(self):
+        return self.obj
+
+    def failure_category(self, info: dict, grasp: GraspHistory) -> str | None:
+        """From the last stage backwards: over the slot but not down in it, brought to the slot but off in
+        position or yaw, never grasped, carried but not brought, dropped."""
+        if info["success"]:
+            return None
+        if info["pos_correct"] and info["rot_correct"]:
+            return "not_inserted"
+        if float(info["pos_diff_norm"]) < NEAR_SLOT:
+            return "misaligned"
+        if not grasp.ever_grasped:
+            return "never_grasped"
+        return "not_transported" if grasp.held_at_end else "dropped"
+
+    def tracked_frames(self):
+        frames = super().tracked_frames()
+        frames[self.board.name] = (self.board.pose.p, self.board.pose.q)
+        frames["goal"] = (self.goal_pos, yaw_quat(self.goal_rot))
+        return frames
 
     # -- building ------------------------------------------------------------------------------
     def _sensor_cameras(self):
@@ -101,7 +136,8 @@ class AssemblingKitsEnv(TabletopEnv):
 
     def _load_task(self, scene, render):
         # The kit is chosen in _initialize_episode (it needs the episode rng), which builds it then.
-        self.board = self.obj = None
+        self.board: sapien.Entity
+        self.obj: sapien.Entity
         self.static_shapes = []
 
     def _build_kit(self, episode_index: int) -> None:
@@ -110,8 +146,16 @@ class AssemblingKitsEnv(TabletopEnv):
         board = self._board(episode_index)
         board_material = physx.PhysxMaterial(BOARD_FRICTION, BOARD_FRICTION, 0.0)
         visual = (board.visual_vertices, board.visual_faces) if render else None
-        self.board = build_convex_actor(self.scene, "kit", board.convex_pieces, visual, episode.board_color,
-                                        "static", board_material, contact_offset=KIT_CONTACT_OFFSET)
+        self.board = build_convex_actor(
+            self.scene,
+            "kit",
+            board.convex_pieces,
+            visual,
+            episode.board_color,
+            "static",
+            board_material,
+            contact_offset=KIT_CONTACT_OFFSET,
+        )
         floor = self.episodes.board.floor
         self.static_shapes = []
         for i in episode.obj_in_place:
@@ -119,16 +163,34 @@ class AssemblingKitsEnv(TabletopEnv):
             geom = shape_geometry(slot.shape_id)
             pose = sapien.Pose([slot.pos[0], slot.pos[1], floor], yaw_quat(slot.yaw))
             visual = (geom.visual_vertices, geom.visual_faces) if render else None
-            self.static_shapes.append(build_convex_actor(
-                self.scene, f"in_place_{i}", geom.convex_pieces, visual, episode.slot_colors[i], "static",
-                board_material, pose=pose, contact_offset=KIT_CONTACT_OFFSET))
+            self.static_shapes.append(
+                build_convex_actor(
+                    self.scene,
+                    f"in_place_{i}",
+                    geom.convex_pieces,
+                    visual,
+                    episode.slot_colors[i],
+                    "static",
+                    board_material,
+                    pose=pose,
+                    contact_offset=KIT_CONTACT_OFFSET,
+                )
+            )
         target = episode.target_slot
         geom = shape_geometry(target.shape_id)
         visual = (geom.visual_vertices, geom.visual_faces) if render else None
         material = physx.PhysxMaterial(SHAPE_FRICTION, SHAPE_FRICTION, 0.0)
-        self.obj = build_convex_actor(self.scene, "obj_to_place", geom.convex_pieces, visual,
-                                      episode.slot_colors[episode.obj_to_place], "dynamic", material,
-                                      density=SHAPE_DENSITY, contact_offset=KIT_CONTACT_OFFSET)
+        self.obj = build_convex_actor(
+            self.scene,
+            "obj_to_place",
+            geom.convex_pieces,
+            visual,
+            episode.slot_colors[episode.obj_to_place],
+            "dynamic",
+            material,
+            density=SHAPE_DENSITY,
+            contact_offset=KIT_CONTACT_OFFSET,
+        )
         self.obj_body = self.obj.find_component_by_type(physx.PhysxRigidDynamicComponent)
         self.shape = geom
         self.goal_pos, self.goal_rot = self.episodes.goal_pose(episode_index)
@@ -150,7 +212,7 @@ class AssemblingKitsEnv(TabletopEnv):
         if index is None:
             index = int(rng.integers(n))
         elif not isinstance(index, (int, np.integer)) or not 0 <= index < n:
-            raise ValueError(f"episode_index {index!r} out of range; valid choices: 0..{n - 1}")
+            raise KitbenchError(f"episode_index {index!r} out of range; valid choices: 0..{n - 1}")
         self.episode_index = int(index)
         self.episode = self.episodes[self.episode_index]
         self._build_kit(self.episode_index)
@@ -200,7 +262,7 @@ class AssemblingKitsEnv(TabletopEnv):
             "success": pos_correct and rot_correct and in_slot,
         }
 
-    def _task_state(self, info):
+    def task_state(self):
         obj = self.obj.pose
         tcp = self.robot.tcp_pose().p
         goal = self.goal_pos.astype(np.float32)
@@ -236,3 +298,6 @@ class AssemblingKitsEnv(TabletopEnv):
             depth = max(0.0, float(p[2]) - self.floor)
             return reward + 1.0 + align_xy + align_yaw + (1.0 - math.tanh(50.0 * depth))
         return reward + min(1.0, max(0.0, clearance / 0.02)) + align_xy + align_yaw
+
+
+assert POS_TOLERANCE < NEAR_SLOT

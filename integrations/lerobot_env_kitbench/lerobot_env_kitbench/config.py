@@ -1,0 +1,78 @@
+"""`--env.type=kitbench`: the LeRobot env config of kitbench's tasks.
+
+Defined at module level (not inside a function) so that every process that unpickles it, lerobot's async
+vector-env workers included, registers the same choice class on import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+
+from kitbench.control.controllers import CONTROL_MODES
+from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, STATE, action_feature, observation_features
+from kitbench.errors import check_choice
+from kitbench.registration import TASKS, make_env
+from lerobot_env_kitbench.env import OBS_TYPES, register_lerobot_envs
+
+# env observation key -> (dataset feature name, LeRobot feature type)
+_STATE_KEYS = {"agent_pos": (STATE, FeatureType.STATE), "environment_state": (ENVIRONMENT_STATE, FeatureType.ENV)}
+
+
+@lru_cache(maxsize=16)
+def _env_features(task: str, control_mode: str) -> tuple[dict, dict]:
+    """The task's observation features (cameras included) and action feature, read off a state-only env: the
+    env is the one place they are defined, and a state env needs no renderer."""
+    env = make_env(task, obs_mode="state", control_mode=control_mode)
+    try:
+        return observation_features(env, images=True), action_feature(env)
+    finally:
+        env.close()
+
+
+@EnvConfig.register_subclass("kitbench")
+@dataclass
+class KitbenchEnvConfig(EnvConfig):
+    """A kitbench task (`--env.task`, e.g. LiftPegUpright-v1) with LeRobot's observation names.
+
+    `obs_type` "state" gives `agent_pos` (observation.state) and `environment_state`
+    (observation.environment_state); "pixels_state" adds each camera's image (observation.images.<camera>).
+    `control_mode` must be the one the training dataset was recorded in.
+    """
+
+    task: str | None = "LiftPegUpright-v1"
+    fps: int = 20
+    obs_type: str = "state"
+    control_mode: str = "pd_joint_delta_pos"
+    episode_length: int | None = None  # default: the task's own step limit
+    render_mode: str = "rgb_array"
+    features: dict = field(default_factory=dict)
+    features_map: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        check_choice("task", self.task, tuple(TASKS))
+        check_choice("obs_type", self.obs_type, OBS_TYPES)
+        check_choice("control_mode", self.control_mode, CONTROL_MODES)
+        register_lerobot_envs()  # tasks registered after this package was imported get their gym ids too
+        observations, action = _env_features(self.task, self.control_mode)
+        self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=tuple(action["shape"]))}
+        self.features_map = {"action": "action"}
+        for key, (name, kind) in _STATE_KEYS.items():
+            self.features[key] = PolicyFeature(type=kind, shape=tuple(observations[name]["shape"]))
+            self.features_map[key] = name
+        if self.obs_type == "pixels_state":
+            for name, feature in observations.items():
+                if name.startswith(IMAGES):
+                    key = f"pixels/{name[len(IMAGES) :]}"
+                    self.features[key] = PolicyFeature(type=FeatureType.VISUAL, shape=tuple(feature["shape"]))
+                    self.features_map[key] = name
+
+    @property
+    def gym_kwargs(self) -> dict:
+        kwargs = {"obs_type": self.obs_type, "control_mode": self.control_mode, "render_mode": self.render_mode}
+        if self.episode_length is not None:
+            kwargs["max_episode_steps"] = self.episode_length
+        return kwargs

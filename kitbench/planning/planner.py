@@ -1,0 +1,119 @@
+"""`PhasePlanner`: what every scripted expert shares, around the one thing each task supplies, its phase table.
+
+An expert plans TCP paths, solves and times them (`ik.ArmIK.plan`, as fast as the Panda's joint limits allow,
+`timing`) and plays the resulting steps phase by phase (`phases.PhaseSequencer`), planning each phase when it
+starts. A task's expert subclasses `PhasePlanner` and implements its hooks: the config it is tuned by, the actor
+it picks up and the transition table from one phase to the next.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+import numpy as np
+
+from kitbench.planning.ik import ArmIK, TimedPath
+from kitbench.planning.phases import OPEN, PhaseSequencer, Step, hold
+from kitbench.planning.poses import pose_matrix
+from kitbench.planning.timing import ARM_MAX_ACCELERATION, ARM_MAX_VELOCITY
+
+
+class PhasePlanner(ABC):
+    """Closed loop between phases, open loop within them; reads the simulated state from `env.unwrapped`.
+
+    `act` returns a `pd_joint_pos` action (7 joint targets, gripper -1 open .. 1 closed) whatever the env's
+    control mode: an env in another mode needs the target converted (`kitbench.policies.convert`). In
+    `pd_joint_delta_pos` the plans keep every joint step inside that mode's +-0.1 rad action box (2 rad/s, below
+    joints 5-7's 2.61 rad/s): a clipped step would leave the joints out of step with one another.
+
+    `phase` names the phase being played and `tcp_target` is the 4x4 world TCP pose of the last action.
+    `grasp_attempts` and `failure` (None, or why the expert gave up) let benchmarks sort failures.
+
+    `config` (default `default_config()`) is a frozen dataclass of the expert's tunables; the base class reads
+    its `speed_factor`, the fraction of the Panda's joint velocity and acceleration limits plans may use.
+    """
+
+    def __init__(self, env, config=None):
+        self.env = env.unwrapped
+        self.cfg = config or self.default_config()
+        self.dt = self.env.control_timestep
+        self.max_velocity = self.cfg.speed_factor * ARM_MAX_VELOCITY
+        self.max_acceleration = self.cfg.speed_factor * ARM_MAX_ACCELERATION
+        if self.env.control_mode == "pd_joint_delta_pos":  # its actions move a joint at most this far per step
+            step_limit = self.env.action_space.high[:7].astype(np.float64) * 0.98
+            self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
+        self.ik = ArmIK(pose_matrix(self.env.robot.base_pose))
+        self.sequencer = PhaseSequencer(self.plan_next)
+        self.reset()
+
+    # -- hooks ----------------------------------------------------------------------------------------------------
+    @classmethod
+    @abstractmethod
+    def default_config(cls):
+        """The config used when none is given: each task's motion has its own tunables (and measured defaults)."""
+
+    @abstractmethod
+    def target_actor(self):
+        """The actor the expert picks up: the grasp checks and the object pose measured between phases read it."""
+
+    @abstractmethod
+    def plan_next(self, finished: str | None) -> list[Step]:
+        """The transition table: the steps after phase `finished` (None at the start of an episode), planned from
+        the simulated state now. This is where a task's expert closes the loop, e.g. retrying a missed grasp."""
+
+    def on_reset(self) -> None:  # noqa: B027  (an optional hook: most experts keep no per-episode state)
+        """Clear task-specific per-episode state; runs at the end of every `reset` (nothing by default)."""
+
+    # -- public API -----------------------------------------------------------------------------------------------
+    def reset(self, obs=None, info=None) -> None:
+        self.sequencer.reset()
+        self.grasp_attempts = 0
+        self.failure: str | None = None
+        self.on_reset()
+
+    def act(self, obs=None) -> np.ndarray:
+        step = self.sequencer.next_step()
+        return np.append(step.q, step.gripper).astype(np.float32)
+
+    @property
+    def phase(self) -> str | None:
+        return self.sequencer.phase
+
+    @property
+    def tcp_target(self) -> np.ndarray | None:
+        return None if self.sequencer.last is None else self.sequencer.last.tcp
+
+    # -- state ----------------------------------------------------------------------------------------------------
+    def _object_pose(self) -> np.ndarray:
+        return pose_matrix(self.target_actor().pose)
+
+    def _holding(self) -> bool:
+        return bool(self.env.robot.is_grasping(self.target_actor()))
+
+    def _tcp(self) -> np.ndarray:
+        return pose_matrix(self.env.robot.tcp_pose())
+
+    def _last(self) -> Step:
+        """Where the next phase starts: the last commanded step (the measured joints before the first action)."""
+        if self.sequencer.last is None:
+            q = self.env.robot.qpos()[:7].astype(np.float64)
+            return Step(self.ik.fk(q), q, OPEN, "start")
+        return self.sequencer.last
+
+    # -- planning helpers -----------------------------------------------------------------------------------------
+    def _timed(
+        self, pose_at: Callable[[float], np.ndarray], start: Step, min_steps: int = 1, speed: float = 1.0
+    ) -> TimedPath:
+        """`pose_at` solved from `start` and timed at `speed` times the planner's joint limits."""
+        return self.ik.plan(
+            pose_at, start.q, speed * self.max_velocity, speed * self.max_acceleration, self.dt, min_steps=min_steps
+        )
+
+    def _fail(self, reason: str) -> list[Step]:
+        """Give up: keep still (the episode runs out). The first reason given sticks."""
+        self.failure = self.failure or reason
+        return hold(self._last(), 1, phase="failed")
+
+
+__all__ = ["PhasePlanner"]

@@ -1,0 +1,197 @@
+"""The package's shape, checked from its source: no import cycles, no reach-ins into other objects' private
+members, and no task named outside the task's own files (so adding a task touches no shared file)."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "kitbench"
+PLUGIN = Path(__file__).resolve().parents[1] / "integrations" / "lerobot_env_kitbench"
+# Shared code that must ask tasks through their hooks instead of naming them.
+TASK_FREE = ("evaluation", "recording", "policies", "envs", "cli.py", "demo.py", "doctor.py", "registration.py")
+TASK_WORDS = re.compile(r"LiftPeg|AssemblingKits|\bpeg\b|shape_id", re.IGNORECASE)
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _sources() -> dict[str, tuple[Path, ast.Module]]:
+    return {_module_name(p): (p, ast.parse(p.read_text())) for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def _type_checking_nodes(tree: ast.Module) -> set[int]:
+    """ids of nodes inside `if TYPE_CHECKING:` blocks (imports there never run)."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for child in node.body:
+                skip.update(id(n) for n in ast.walk(child))
+    return skip
+
+
+def _imports(name: str, path: Path, tree: ast.Module, modules: set[str]) -> set[str]:
+    """kitbench modules that `name` imports explicitly, at module level or inside functions."""
+    skip = _type_checking_nodes(tree)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(
+                    package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else [])
+                )
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        for target in targets:
+            while target and target not in modules:
+                target = target.rpartition(".")[0]
+            if target and target != name:
+                found.add(target)
+    return found
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one member (Tarjan)."""
+    index, low, stack, on_stack, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+@pytest.fixture(scope="module")
+def module_graph() -> dict[str, set[str]]:
+    sources = _sources()
+    modules = set(sources)
+    return {name: _imports(name, path, tree, modules) for name, (path, tree) in sources.items()}
+
+
+def test_no_import_cycles_between_modules(module_graph):
+    assert _cycles(module_graph) == []
+
+
+def test_no_import_cycles_between_subpackages(module_graph):
+    def unit(name: str) -> str:
+        return ".".join(name.split(".")[:2])
+
+    graph: dict[str, set[str]] = {}
+    for name, targets in module_graph.items():
+        if name == "kitbench":  # the package's own __init__ imports its parts to register tasks
+            continue
+        graph.setdefault(unit(name), set()).update(
+            unit(t) for t in targets if unit(t) != unit(name) and t != "kitbench"
+        )
+    assert _cycles(graph) == []
+
+
+def test_the_cycle_finder_finds_cycles():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def _private_reach_ins(tree: ast.Module) -> list[str]:
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            owner = node.value
+            if isinstance(owner, ast.Name) and owner.id in ("self", "cls"):
+                continue
+            if isinstance(owner, ast.Call) and isinstance(owner.func, ast.Name) and owner.func.id == "super":
+                continue
+            found.append(f"{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+@pytest.mark.parametrize("root", [PACKAGE, PLUGIN], ids=["kitbench", "plugin"])
+def test_no_reaching_into_other_objects_private_members(root):
+    found = {str(p.relative_to(root)): _private_reach_ins(ast.parse(p.read_text())) for p in root.rglob("*.py")}
+    assert {k: v for k, v in found.items() if v} == {}
+
+
+def test_the_reach_in_finder_finds_them():
+    assert _private_reach_ins(ast.parse("u._cameras\nself._ok\nsuper()._fine()\nenv.unwrapped._task_state(x)")) == [
+        "1: u._cameras",
+        "4: env.unwrapped._task_state",
+    ]
+
+
+def _code_words(tree: ast.Module) -> list[tuple[int, str]]:
+    """Identifiers and string constants that are not docstrings."""
+    docstrings = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                docstrings.add(id(first.value))
+    words = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            words.append((node.lineno, node.value))
+        elif isinstance(node, ast.Name):
+            words.append((node.lineno, node.id))
+        elif isinstance(node, ast.Attribute):
+            words.append((node.lineno, node.attr))
+        elif isinstance(node, (ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef, ast.alias)):
+            words.append((node.lineno, node.name))
+    return words
+
+
+def _task_mentions(root: Path, parts: tuple[str, ...]) -> dict[str, list[str]]:
+    found = {}
+    for part in parts:
+        for path in sorted((root / part).rglob("*.py")) if (root / part).is_dir() else [root / part]:
+            hits = [
+                f"{line}: {word}" for line, word in _code_words(ast.parse(path.read_text())) if TASK_WORDS.search(word)
+            ]
+            if hits:
+                found[str(path.relative_to(root))] = hits
+    return found
+
+
+def test_shared_code_names_no_task():
+    assert _task_mentions(PACKAGE, TASK_FREE) == {}
+
+
+def test_the_plugin_names_no_task_outside_its_default():
+    found = _task_mentions(PLUGIN, ("lerobot_env_kitbench", "gym_kitbench"))
+    # the config's default `--env.task` is a value a user sees in --help, as lerobot's own configs have
+    assert list(found) == ["lerobot_env_kitbench/config.py"] and len(found["lerobot_env_kitbench/config.py"]) == 1
+
+
+def test_the_task_word_finder_ignores_docstrings_only():
+    tree = ast.parse('"""About the peg."""\ndef f():\n    """the peg"""\n    return u.peg\nx = "AssemblingKits-v1"\n')
+    assert sorted(w for _, w in _code_words(tree) if TASK_WORDS.search(w)) == ["AssemblingKits-v1", "peg"]
