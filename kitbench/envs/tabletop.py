@@ -233,9 +233,9 @@ class TabletopEnv(gym.Env, abc.ABC):
         """Free the scene and everything in it (cameras, robot, actors)."""
         self._cameras = {}
         self._human_camera = None
-        # dropping the references lets PhysX and the renderer free the scene; the env needs a reset to run again
-        for name in ("robot", "scene"):
-            self.__dict__.pop(name, None)
+        # dropping the references lets PhysX and the renderer free the scene; a closed env runs again after reset
+        self.robot = None  # type: ignore[assignment]  # typed for the open env, which always has one
+        self.scene = None
 
     # -- internals --------------------------------------------------------------------------------
     def _build_world(self) -> None:
