@@ -124,38 +124,22 @@ def test_mismatched_policy_lists_expected_and_provided(checkpoint):
         run_episode(gym.make("kitbench/AssemblingKits-v1"), policy, seed=0)
 
 
-def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan):
+@pytest.mark.parametrize("batch_size,use_async", [(1, False), (2, True)], ids=["sync", "async"])
+def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan, batch_size, use_async):
+    """Async vector-env workers unpickle the env config: its class must be importable at module level, and every
+    sub-env must answer `task` and `task_description`."""
     cmd = [
         str(BIN / "lerobot-eval"),
         f"--policy.path={checkpoint}",
         "--policy.device=cpu",
         "--env.type=kitbench",
         "--env.task=LiftPegUpright-v1",
-        "--eval.n_episodes=1",
-        "--eval.batch_size=1",
-        "--eval.use_async_envs=false",
+        f"--eval.n_episodes={batch_size}",
+        f"--eval.batch_size={batch_size}",
+        f"--eval.use_async_envs={str(use_async).lower()}",
         f"--output_dir={tmp_path / 'eval'}",
     ]
     run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
-    assert info["overall"]["n_episodes"] == 1
-
-
-def test_lerobot_eval_runs_async_vector_envs(checkpoint, tmp_path, needs_vulkan):
-    """Spawned vector-env workers unpickle the env config: its class must be importable at module level."""
-    cmd = [
-        str(BIN / "lerobot-eval"),
-        f"--policy.path={checkpoint}",
-        "--policy.device=cpu",
-        "--env.type=kitbench",
-        "--env.task=LiftPegUpright-v1",
-        "--eval.n_episodes=2",
-        "--eval.batch_size=2",
-        "--eval.use_async_envs=true",
-        f"--output_dir={tmp_path / 'eval'}",
-    ]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
-    assert info["overall"]["n_episodes"] == 2
+    assert info["overall"]["n_episodes"] == batch_size

@@ -186,9 +186,9 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     runner = _Runner(suite, config.policy, min(config.workers, len(suite.seeds)))
     bar = None
     if progress:
-        from tqdm import tqdm
+        from kitbench.progress import progress as progress_bar
 
-        bar = tqdm(total=len(suite.seeds), desc=f"eval {suite.task}", unit="ep", dynamic_ncols=True)
+        bar = progress_bar(len(suite.seeds), f"eval {suite.task}")
     results: list[EpisodeResult] = []
     try:
         for result in runner.map(_worker_episode, suite.seeds):
