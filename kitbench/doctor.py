@@ -61,6 +61,13 @@ def check_vulkan() -> Check:
     return Check("vulkan", True, f"{name} ({kind})")
 
 
+def vulkan_error() -> str | None:
+    """The line `kitbench doctor` gives when this machine cannot render (None when it can), for commands that
+    need camera images to refuse before they write anything."""
+    check = check_vulkan()
+    return None if check.ok else f"{check.detail}: {check.fix}"
+
+
 def check_video_decoding() -> Check:
     """Encode a tiny clip with ffmpeg and decode it with torchcodec, the way lerobot reads datasets."""
     fix = "install FFmpeg (`apt-get install ffmpeg`, done by `make test` when root) for torchcodec video decoding"
