@@ -67,7 +67,7 @@ def _record(args) -> int:
         return 2
     for line in summary.lines(config.out):
         print(line)
-    return 130 if summary.interrupted else 0
+    return summary.exit_code
 
 
 def _slug(text: str) -> str:

@@ -80,6 +80,17 @@ class Summary:
     seconds: float = 0.0
     size_bytes: int = 0
     interrupted: bool = False
+    signal: int | None = None  # the signal that interrupted the run (SIGINT for Ctrl-C)
+    gave_up: bool = False  # stopped at max_attempts before storing every episode
+    physics_errors: int = 0  # attempts dropped because the simulation failed (info["physics_error"])
+
+    @property
+    def exit_code(self) -> int:
+        """The command's exit status: 128 + the signal when interrupted (130 for Ctrl-C), 3 when it gave up at
+        --max-attempts, 0 otherwise."""
+        if self.interrupted:
+            return 128 + (self.signal or 2)
+        return 3 if self.gave_up else 0
 
     def lines(self, out: Path) -> list[str]:
         rate = self.successes / self.attempted if self.attempted else 0.0
