@@ -91,9 +91,6 @@ class PushCubePlanner(PhasePlanner):
     def default_config(cls):
         return PushConfig()
 
-    def target_actor(self):
-        return self.env.cube
-
     def _line(self, start, target, phase):
         return steps_from(
             self._timed(lambda s: interpolate_pose(start.tcp, target, s), start, min_steps=2), CLOSED, phase
@@ -191,13 +188,13 @@ def test_record_eval_and_mcap(tmp_path):
     assert kitbench_main(["eval", "--task", TASK, "--episodes", "4", "--out", str(report_dir)]) == 0
     report = json.loads((report_dir / "report.json").read_text())
     assert report["success"]["count"] == 4 and list(report["criteria"]) == ["at_goal"]
-    assert report["failure_categories"] == {"not_at_goal": 0}
+    assert report["failure_categories"] == {"not_at_goal": 0, "physics_error": 0}
     assert (
         kitbench_main(["eval", "--task", TASK, "--policy", "zero", "--episodes", "2", "--out", str(tmp_path / "zero")])
         == 0
     )
     zero = json.loads((tmp_path / "zero" / "report.json").read_text())
-    assert zero["failure_categories"] == {"not_at_goal": 2}
+    assert zero["failure_categories"] == {"not_at_goal": 2, "physics_error": 0}
 
 
 def test_lerobot_plugin_serves_the_task():

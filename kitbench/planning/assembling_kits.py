@@ -127,9 +127,6 @@ class AssemblingKitsPlanner(PhasePlanner):
     def default_config(cls) -> AssemblingKitsPlannerConfig:
         return AssemblingKitsPlannerConfig()
 
-    def target_actor(self):
-        return self.env.obj
-
     def on_reset(self) -> None:
         self.align_corrections = 0
         self.turn_at_goal = 0.0  # signed rotation of the shape from its pose at the grasp to the goal, rad

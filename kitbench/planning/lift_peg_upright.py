@@ -80,9 +80,6 @@ class LiftPegUprightPlanner(PhasePlanner):
     def default_config(cls) -> PlannerConfig:
         return PlannerConfig()
 
-    def target_actor(self):
-        return self.env.peg
-
     # -- state ----------------------------------------------------------------------------------------------------
     def _peg_frame(self) -> np.ndarray:
         """The lying peg's frame: origin on the table under its centre, x along its axis pointing away from the

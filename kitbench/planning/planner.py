@@ -2,8 +2,8 @@
 
 An expert plans TCP paths, solves and times them (`ik.ArmIK.plan`, as fast as the Panda's joint limits allow,
 `timing`) and plays the resulting steps phase by phase (`phases.PhaseSequencer`), planning each phase when it
-starts. A task's expert subclasses `PhasePlanner` and implements its hooks: the config it is tuned by, the actor
-it picks up and the transition table from one phase to the next.
+starts. A task's expert subclasses `PhasePlanner` and implements its hooks: the config it is tuned by and the
+transition table from one phase to the next (the actor it handles is the task's `target_object`).
 """
 
 from __future__ import annotations
@@ -53,9 +53,10 @@ class PhasePlanner(ABC):
     def default_config(cls):
         """The config used when none is given: each task's motion has its own tunables (and measured defaults)."""
 
-    @abstractmethod
     def target_actor(self):
-        """The actor the expert picks up: the grasp checks and the object pose measured between phases read it."""
+        """The actor the expert manipulates: the grasp checks and the object pose measured between phases read
+        it. By default the task's own `target_object`, so planner and evaluation follow the same actor."""
+        return self.env.target_object
 
     @abstractmethod
     def plan_next(self, finished: str | None) -> list[Step]:

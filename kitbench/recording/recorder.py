@@ -10,15 +10,21 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import shutil
+import signal
+import sys
 import tempfile
+import threading
 import time
 from collections import deque
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.recording.config import RecordConfig, load_recipe, make_recording_env, validate
+from kitbench.recording.journal import EpisodeJournal
 
 MCAP_DIR = "mcap"
+ATTEMPTS_PER_EPISODE = 10  # default --max-attempts: this many attempts per episode asked for
 
 __all__ = ["MCAP_DIR", "RecordConfig", "Summary", "load_recipe", "make_recording_env", "record", "validate"]
 
@@ -27,8 +33,14 @@ __all__ = ["MCAP_DIR", "RecordConfig", "Summary", "load_recipe", "make_recording
 _WORKER: dict = {}
 
 
-def _worker_init(config: RecordConfig, mcap_tmp: str | None) -> None:
+def _worker_init(config: RecordConfig, mcap_tmp: str | None, in_pool: bool = False) -> None:
     from kitbench.policies.registry import make_policy
+
+    if in_pool:
+        # Ctrl-C and a terminal hang-up reach the whole process group: the driver handles them (it commits, then
+        # ends the pool). SIGTERM keeps its default: it is how the pool ends its workers.
+        for signum in (signal.SIGINT, signal.SIGHUP):
+            signal.signal(signum, signal.SIG_IGN)
 
     _WORKER["env"] = make_recording_env(config)
     _WORKER["policy"] = make_policy(config.policy)
@@ -59,7 +71,7 @@ class _InProcess:
 
 class _Pool:
     def __init__(self, config, mcap_tmp, workers):
-        self._pool = mp.get_context("spawn").Pool(workers, initializer=_worker_init, initargs=(config, mcap_tmp))
+        self._pool = mp.get_context("spawn").Pool(workers, initializer=_worker_init, initargs=(config, mcap_tmp, True))
 
     def submit(self, seed):
         return self._pool.apply_async(_worker_episode, (seed,)).get
@@ -107,8 +119,18 @@ class Summary:
             ),
             f"size on disk: {self.size_bytes / 2**20:.1f} MiB",
         ]
+        if self.physics_errors:
+            lines.insert(2, f"not stored because the simulation failed: {self.physics_errors} attempt(s)")
         if self.interrupted:
-            lines.insert(0, "interrupted: every completed episode was committed; continue with --resume")
+            name = signal.Signals(self.signal or signal.SIGINT).name
+            lines.insert(0, f"interrupted ({name}): every completed episode was committed; continue with --resume")
+        if self.gave_up:
+            lines.insert(
+                0,
+                f"stopped after {self.attempted} attempts ({self.successes} successes, success rate {rate:.1%}): "
+                f"the attempt limit (--max-attempts) was reached with {self.stored} episode(s) stored; raise it and "
+                "continue with --resume",
+            )
         return lines
 
 
@@ -116,19 +138,89 @@ def _folder_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.exists() else 0
 
 
+class _Stopped(KeyboardInterrupt):
+    """Ctrl-C, SIGTERM or SIGHUP: commit what is stored, say so, exit non-zero."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+class _StopSignals:
+    """Turn SIGINT, SIGTERM and SIGHUP into `_Stopped` while recording (main thread only; restored afterwards).
+
+    Inside `storing()` a signal is held until the episode being stored is in the journal and the session: raised
+    in the middle, it would lose an episode that had finished."""
+
+    def __init__(self):
+        self._old: dict = {}
+        self._storing = False
+        self._held: int | None = None
+
+    def _handle(self, signum, frame):
+        if self._storing:
+            self._held = signum
+        else:
+            raise _Stopped(signum)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                self._old[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for signum, handler in self._old.items():
+            signal.signal(signum, handler)
+
+    @contextmanager
+    def storing(self):
+        self._storing = True
+        try:
+            yield
+        finally:
+            self._storing = False
+        if self._held is not None:
+            raise _Stopped(self._held)
+
+
+def _say(message: str) -> None:
+    print(f"kitbench record: {message}", file=sys.stderr, flush=True)
+
+
+def _publish(writer, journal: EpisodeJournal, episode, mcap_path: Path | None) -> None:
+    """Add a journaled episode to the open session, its MCAP log linked in (the journal keeps its copy until
+    the commit publishes the session)."""
+    index = writer.add_episode(episode, {})
+    if mcap_path is not None:
+        target = writer.session_root / MCAP_DIR / f"episode_{index:06d}.mcap"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.link(mcap_path, target)
+
+
+def _commit(writer, journal: EpisodeJournal, published: list[int]) -> None:
+    writer.commit()
+    journal.discard(published)
+    published.clear()
+
+
 def record(config: RecordConfig, progress: bool = True) -> Summary:
+    """Record `config.episodes` episodes (continuing a recording with `resume`); see the module docstring."""
     from kitbench.recording.dataset import DatasetWriter, recover
     from kitbench.recording.features import dataset_features
 
     validate(config)
     out = config.out
+    journal = EpisodeJournal(out)
     if config.overwrite:
         recover(out)
         if out.exists():
             shutil.rmtree(out)
+        journal.remove()
     recover(out)
     committed = DatasetWriter.committed_episodes(out) if out.exists() else []
-    next_seed = (max(e["seed"] for e in committed) + 1) if committed else config.seed
+    done_seeds = {e["seed"] for e in committed}
+    journal.discard([s for s in journal.seeds() if s in done_seeds])  # published just before a kill
     env = make_recording_env(config)
     env.reset(seed=config.seed)
     features = dataset_features(env)
@@ -137,59 +229,91 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     env.close()
     recording = {**config.identity(), "repo_id": config.dataset_repo_id, "fps": fps}
     writer = DatasetWriter(out, config.dataset_repo_id, fps, features, robot_uid, recording)
-    summary = Summary(stored=len(committed))
-    remaining = config.episodes - len(committed)
     out.parent.mkdir(parents=True, exist_ok=True)
-    mcap_tmp = tempfile.mkdtemp(prefix=f".{out.name}.mcap-", dir=out.parent) if config.mcap else None
-    runner = _InProcess(config, mcap_tmp) if config.workers == 1 else _Pool(config, mcap_tmp, config.workers)
+    journal.start(recording)
+    summary = Summary(stored=len(committed))
+    published: list[int] = []  # seeds in the open session, journaled until it is committed
+    mcap_tmp = None
+    runner = None
     bar = None
-    if progress and remaining > 0:
-        from kitbench.progress import progress as progress_bar
-
-        bar = progress_bar(remaining, f"record {config.task}")
     start = time.monotonic()
-    pending: deque = deque()
-    seed = next_seed
     try:
-        while summary.stored < config.episodes:
-            while len(pending) < 2 * config.workers:
-                pending.append((seed, runner.submit(seed)))
-                seed += 1
-            _, get = pending.popleft()
-            episode, mcap_path = get()
-            summary.attempted += 1
-            summary.successes += int(episode.success)
-            if config.only_success and not episode.success:
-                summary.failures_dropped += 1
-                if mcap_path is not None and mcap_path.exists():
-                    mcap_path.unlink()
-            else:
-                index = writer.add_episode(episode, {})
-                if mcap_path is not None:
-                    target = writer.session_root / MCAP_DIR / f"episode_{index:06d}.mcap"
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(mcap_path, target)
-                summary.stored += 1
-                summary.frames += episode.length
+        with _StopSignals() as stops:
+            # episodes a killed run had finished but not committed: publish them first, in seed order
+            for seed in journal.seeds():
+                if summary.stored >= config.episodes:
+                    break
+                episode, mcap_path = journal.load(seed)
+                with stops.storing():
+                    _publish(writer, journal, episode, mcap_path)
+                    published.append(seed)
+                    summary.stored += 1
+            last = max([*done_seeds, *published], default=config.seed - 1)
+            next_seed = max(last + 1, config.seed)
+            remaining = config.episodes - summary.stored
+            limit = config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
+            if progress and remaining > 0:
+                from kitbench.progress import progress as progress_bar
+
+                bar = progress_bar(remaining, f"record {config.task}")
+            if remaining > 0:
+                if config.mcap:
+                    mcap_tmp = tempfile.mkdtemp(prefix=f".{out.name}.mcap-", dir=out.parent)
+                runner = (
+                    _InProcess(config, mcap_tmp) if config.workers == 1 else _Pool(config, mcap_tmp, config.workers)
+                )
+            pending: deque = deque()
+            seed = next_seed
+            while summary.stored < config.episodes:
+                if summary.attempted >= limit:
+                    summary.gave_up = True
+                    break
+                while runner is not None and len(pending) < 2 * config.workers:
+                    pending.append((seed, runner.submit(seed)))
+                    seed += 1
+                _, get = pending.popleft()
+                episode, mcap_path = get()
+                summary.attempted += 1
+                summary.successes += int(episode.success)
+                if episode.physics_error is not None:
+                    summary.physics_errors += 1
+                    _say(f"seed {episode.seed}: not stored, the simulation failed: {episode.physics_error}")
+                if episode.physics_error is not None or (config.only_success and not episode.success):
+                    summary.failures_dropped += episode.physics_error is None
+                    if mcap_path is not None:
+                        Path(mcap_path).unlink(missing_ok=True)
+                else:
+                    with stops.storing():
+                        mcap_path = journal.add(episode, mcap_path)
+                        _publish(writer, journal, episode, mcap_path)
+                        published.append(episode.seed)
+                        summary.stored += 1
+                        summary.frames += episode.length
+                    if bar is not None:
+                        bar.update(1)
+                    if writer.session_age() >= config.commit_interval:
+                        with stops.storing():  # a commit interrupted half-way would leave a session to discard
+                            _commit(writer, journal, published)
                 if bar is not None:
-                    bar.update(1)
-                if summary.stored == config.episodes or writer.session_age() >= config.commit_interval:
-                    writer.commit()
-            if bar is not None:
-                bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
-        writer.commit()
-    except KeyboardInterrupt:
-        writer.commit()
+                    bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
+            with stops.storing():
+                _commit(writer, journal, published)
+    except KeyboardInterrupt as exc:
+        _commit(writer, journal, published)
         summary.interrupted = True
+        summary.signal = exc.signum if isinstance(exc, _Stopped) else signal.SIGINT
     except BaseException:
-        writer.abandon()
+        writer.abandon()  # the journal keeps every finished episode for --resume
         raise
     finally:
-        runner.close()
+        if runner is not None:
+            runner.close()
         if bar is not None:
             bar.close()
         if mcap_tmp:
             shutil.rmtree(mcap_tmp, ignore_errors=True)
+    if summary.stored >= config.episodes:
+        journal.remove()
     summary.seconds = time.monotonic() - start
     summary.size_bytes = _folder_size(out)
     return summary

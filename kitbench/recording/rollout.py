@@ -23,7 +23,7 @@ class EpisodeRecord:
     success: bool = False
     first_success: int | None = None  # step index of the first successful frame
     config: dict = field(default_factory=dict)
-    infos: list[dict] = field(default_factory=list)
+    physics_error: str | None = None  # the simulation failed at the last step (`info["physics_error"]`)
 
     @property
     def length(self) -> int:
@@ -78,7 +78,6 @@ def run_episode(env, policy, seed: int, mcap_path: Path | None = None) -> Episod
             frame["next.done"] = np.array([terminated or truncated], dtype=bool)
             frame["next.success"] = np.array([bool(info["success"])], dtype=bool)
             record.frames.append(frame)
-            record.infos.append(info)
             if log is not None:
                 log.log_step(
                     (step + 1) * dt_ns,
@@ -101,5 +100,6 @@ def run_episode(env, policy, seed: int, mcap_path: Path | None = None) -> Episod
     finally:
         if log is not None:
             log.close()
+    record.physics_error = info.get("physics_error")
     record.success = record.first_success is not None
     return record

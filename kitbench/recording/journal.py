@@ -1,0 +1,136 @@
+"""The episode journal: each finished episode is durable on disk before the recorder moves on.
+
+Publishing episodes into a LeRobot dataset costs a session clone and a `finalize()` (about 1.5 s), so commits
+stay periodic (`commit_interval`). Between commits every stored episode is also written to `<out>.journal/`: one
+`.npz` file per episode (its frames and metadata, written to a temporary name, fsync'd, then renamed, so a file
+under its final name is always whole) and its MCAP log beside it. After a kill, `--resume` hands the journaled
+episodes back to the writer, in seed order, before recording goes on: a kill -9 at any moment loses at most the
+episode in flight. A commit deletes the journal entries it published.
+
+The journal also keeps the recording's settings (`recording.json`), so a run killed before its first commit,
+which leaves no dataset folder at all, can still be resumed and checked against what was asked.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from kitbench.recording.rollout import EpisodeRecord
+
+JOURNAL_SUFFIX = ".journal"
+SETTINGS_FILE = "recording.json"
+_META = "__meta__"
+
+
+def journal_root(out: Path) -> Path:
+    """The journal folder of the dataset folder `out` (a sibling, so publishing `out` never touches it)."""
+    out = Path(out)
+    return out.with_name(out.name + JOURNAL_SUFFIX)
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_durably(path: Path, data: bytes) -> None:
+    partial = path.with_name(f".{path.name}.partial")
+    with open(partial, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(partial, path)
+
+
+class EpisodeJournal:
+    """Finished episodes not yet published in the dataset, one file each, named by seed."""
+
+    def __init__(self, out: Path):
+        self.root = journal_root(out)
+
+    def exists(self) -> bool:
+        return self.root.is_dir()
+
+    def settings(self) -> dict | None:
+        """The settings of the recording the journal belongs to (None when there is no journal)."""
+        path = self.root / SETTINGS_FILE
+        return json.loads(path.read_text()) if path.is_file() else None
+
+    def start(self, settings: dict) -> None:
+        """Create the journal for a recording with `settings` (kept if it exists: a resumed recording)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        if not (self.root / SETTINGS_FILE).is_file():
+            _write_durably(self.root / SETTINGS_FILE, (json.dumps(settings, indent=2) + "\n").encode())
+            _fsync_dir(self.root.parent)
+
+    def _path(self, seed: int, suffix: str) -> Path:
+        return self.root / f"seed-{seed:010d}{suffix}"
+
+    def add(self, episode: EpisodeRecord, mcap_path: Path | None = None) -> Path | None:
+        """Make `episode` durable (and move its MCAP log into the journal); returns the log's new path."""
+        keys = list(episode.frames[0]) if episode.frames else []
+        arrays = {k: np.stack([f[k] for f in episode.frames]) for k in keys}
+        meta = {
+            "seed": episode.seed,
+            "task": episode.task,
+            "success": episode.success,
+            "first_success": episode.first_success,
+            "config": episode.config,
+            "physics_error": episode.physics_error,
+            "keys": keys,
+        }
+        payload: dict[str, Any] = {**arrays, _META: np.array(json.dumps(meta))}
+        buffer = io.BytesIO()
+        np.savez(buffer, **payload)  # uncompressed: fast, and the file lives only until the next commit
+        moved = None
+        if mcap_path is not None and Path(mcap_path).exists():
+            moved = self._path(episode.seed, ".mcap")
+            with open(mcap_path, "rb") as f:  # the log is complete (closed) before the episode is journaled
+                os.fsync(f.fileno())
+            os.replace(mcap_path, moved)
+        _write_durably(self._path(episode.seed, ".npz"), buffer.getvalue())
+        _fsync_dir(self.root)
+        return moved
+
+    def seeds(self) -> list[int]:
+        """Seeds of the journaled episodes, in order (only whole files count: a partial one was in flight)."""
+        return sorted(int(p.stem[len("seed-") :]) for p in self.root.glob("seed-*.npz"))
+
+    def load(self, seed: int) -> tuple[EpisodeRecord, Path | None]:
+        """A journaled episode as the recorder produced it, and its MCAP log if it has one."""
+        with np.load(self._path(seed, ".npz")) as data:
+            meta = json.loads(str(data[_META]))
+            arrays = {k: data[k] for k in meta["keys"]}
+        length = len(next(iter(arrays.values()))) if arrays else 0
+        frames = [{k: v[i] for k, v in arrays.items()} for i in range(length)]
+        episode = EpisodeRecord(
+            seed=meta["seed"],
+            task=meta["task"],
+            frames=frames,
+            success=meta["success"],
+            first_success=meta["first_success"],
+            config=meta["config"],
+            physics_error=meta["physics_error"],
+        )
+        mcap = self._path(seed, ".mcap")
+        return episode, (mcap if mcap.exists() else None)
+
+    def discard(self, seeds) -> None:
+        """Forget episodes once they are published."""
+        for seed in seeds:
+            for suffix in (".npz", ".mcap"):
+                self._path(seed, suffix).unlink(missing_ok=True)
+
+    def remove(self) -> None:
+        """Delete the whole journal (the recording is complete and committed, or being replaced)."""
+        shutil.rmtree(self.root, ignore_errors=True)

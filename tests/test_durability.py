@@ -1,0 +1,194 @@
+"""Recording survives what a cluster or a user does to it: kill -9 loses at most the episode in flight, SIGTERM
+and SIGHUP commit like Ctrl-C, a run that cannot reach its episode count stops, and nothing is left behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import kitbench  # noqa: F401
+from kitbench.recording.journal import EpisodeJournal, journal_root
+from kitbench.recording.recorder import RecordConfig, record
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONUNBUFFERED": "1"}
+TASK = "LiftPegUpright-v1"
+
+
+def _cli(out: Path, *args: str) -> list[str]:
+    return [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--out", str(out), *args]
+
+
+def _wait_for_journal(out: Path, count: int, proc: subprocess.Popen, timeout: float = 240.0) -> int:
+    """Block until the running recording has journaled `count` episodes; returns how many it has."""
+    deadline = time.monotonic() + timeout
+    root = journal_root(out)
+    while time.monotonic() < deadline:
+        n = len(list(root.glob("seed-*.npz")))
+        if n >= count:
+            return n
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    raise AssertionError(f"no {count} journaled episodes after {timeout} s")
+
+
+def _dataset(out: Path) -> tuple[pd.DataFrame, list[dict]]:
+    frames = pd.concat([pd.read_parquet(p) for p in sorted((out / "data").rglob("*.parquet"))])
+    episodes = [json.loads(line) for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
+    return frames.reset_index(drop=True), episodes
+
+
+def _assert_same_dataset(a: Path, b: Path) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    frames_a, episodes_a = _dataset(a)
+    frames_b, episodes_b = _dataset(b)
+    assert episodes_a == episodes_b
+    assert list(frames_a.columns) == list(frames_b.columns)
+    for column in frames_a.columns:
+        np.testing.assert_array_equal(np.stack(frames_a[column].to_numpy()), np.stack(frames_b[column].to_numpy()))
+    assert sorted(p.name for p in (a / "mcap").glob("*.mcap")) == sorted(p.name for p in (b / "mcap").glob("*.mcap"))
+    assert LeRobotDataset("kitbench/test", root=a).num_episodes == len(episodes_a)  # stock lerobot loads it
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted recording that interrupted ones must end up equal to."""
+    out = tmp_path_factory.mktemp("reference") / "ds"
+    record(RecordConfig(task=TASK, episodes=24, out=out, commit_interval=30.0), progress=False)
+    return out
+
+
+def test_kill_9_loses_at_most_the_episode_in_flight(tmp_path, reference):
+    out = tmp_path / "ds"
+    rng = random.Random(7)
+    for _ in range(3):  # killed at three moments, resumed each time
+        resume = ["--resume"] if out.exists() or journal_root(out).exists() else []
+        proc = subprocess.Popen(
+            _cli(out, "--episodes", "24", *resume), env=ENV, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        )
+        before = len(EpisodeJournal(out).seeds()) if journal_root(out).exists() else 0
+        journaled = _wait_for_journal(out, before + rng.randint(2, 6), proc)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        # the 30 s default commit interval has not passed: the journal holds every finished episode
+        assert len(EpisodeJournal(out).seeds()) >= journaled
+    kept = len(EpisodeJournal(out).seeds()) + (len(_dataset(out)[1]) if out.exists() else 0)
+    done = subprocess.run(
+        _cli(out, "--episodes", "24", "--resume"), env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"attempted {24 - kept}," in done.stdout  # nothing that was journaled is recorded again
+    assert not journal_root(out).exists()
+    _assert_same_dataset(out, reference)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_sigterm_and_sighup_commit_like_ctrl_c(tmp_path, signum):
+    out = tmp_path / "ds"
+    proc = subprocess.Popen(
+        _cli(out, "--episodes", "200", "--workers", "2"),
+        env=ENV,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    journaled = _wait_for_journal(out, 3, proc)
+    proc.send_signal(signum)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signum, stderr[-2000:]
+    assert f"interrupted ({signal.Signals(signum).name}): every completed episode was committed" in stdout
+    assert len(_dataset(out)[1]) >= journaled  # committed, loadable
+    assert not list(tmp_path.glob(".ds.mcap-*")) and not (tmp_path / "ds.session").exists()
+
+
+def test_only_success_stops_at_the_attempt_limit(tmp_path, capsys):
+    from kitbench.cli import main
+
+    out = tmp_path / "ds"
+    code = main(
+        [
+            "record",
+            "--task",
+            TASK,
+            "--out",
+            str(out),
+            "--episodes",
+            "1",
+            "--policy",
+            "random",
+            "--only-success",
+            "--max-attempts",
+            "3",
+        ]
+    )
+    assert code == 3
+    text = capsys.readouterr().out
+    assert "stopped after 3 attempts (0 successes, success rate 0.0%)" in text and "--max-attempts" in text
+    assert not list(tmp_path.glob(".ds.mcap-*"))  # its temporary MCAP folder is gone
+
+
+def test_default_attempt_limit_is_ten_per_episode(tmp_path):
+    summary = record(
+        RecordConfig(task=TASK, episodes=1, out=tmp_path / "ds", policy="random", only_success=True, mcap=False),
+        progress=False,
+    )
+    assert summary.gave_up and summary.attempted == 10 and summary.stored == 0 and summary.exit_code == 3
+
+
+def test_a_fresh_recording_never_replays_a_stale_journal(tmp_path):
+    out = tmp_path / "ds"
+    record(RecordConfig(task=TASK, episodes=2, out=out, mcap=False), progress=False)
+    journal = EpisodeJournal(out)
+    assert not journal.exists()  # complete: nothing left to replay
+    record(RecordConfig(task=TASK, episodes=1, out=tmp_path / "other", seed=50, mcap=False), progress=False)
+    _, episodes = _dataset(tmp_path / "other")
+    assert [e["seed"] for e in episodes] == [50]
+
+
+def test_recording_leaks_no_files_or_descriptors(tmp_path):
+    def open_fds() -> int:
+        return len(os.listdir("/proc/self/fd"))
+
+    record(RecordConfig(task=TASK, episodes=2, out=tmp_path / "warm", mcap=True), progress=False)
+    before = open_fds()
+    for i in range(3):
+        record(RecordConfig(task=TASK, episodes=2, out=tmp_path / f"ds{i}", mcap=True), progress=False)
+    assert open_fds() <= before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds0", "ds1", "ds2", "warm"]
+
+
+def test_a_journal_with_episodes_is_never_overwritten_by_accident(tmp_path):
+    from kitbench.errors import KitbenchError
+
+    out = tmp_path / "ds"
+    proc = subprocess.Popen(
+        _cli(out, "--episodes", "50", "--no-mcap"),
+        env=ENV,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    _wait_for_journal(out, 2, proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with pytest.raises(KitbenchError, match=r"an unfinished recording of .*ds exists .*ds.journal.*pass --resume"):
+        record(RecordConfig(task=TASK, episodes=5, out=out, mcap=False), progress=False)
+    with pytest.raises(KitbenchError, match=r"cannot resume .* different settings .*control_mode"):
+        record(
+            RecordConfig(task=TASK, episodes=5, out=out, mcap=False, resume=True, control_mode="pd_joint_pos"),
+            progress=False,
+        )
+    summary = record(RecordConfig(task=TASK, episodes=5, out=out, mcap=False, resume=True), progress=False)
+    assert summary.stored == 5 and [e["seed"] for e in _dataset(out)[1]] == [0, 1, 2, 3, 4]
