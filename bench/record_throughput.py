@@ -2,7 +2,8 @@
 
 Records N expert episodes per cell into a temporary folder for state vs rgb observations, MCAP on vs off, and
 1 vs 2 workers, and prints episodes/min, frames/s and MiB per episode with the ratios between cells, all measured
-in one run (the machine is shared; compare ratios, not absolute figures across runs).
+in one run (the machine is shared; compare ratios, not absolute figures across runs), then what the per-episode
+journal (durability under kill -9) costs per episode.
 """
 
 from __future__ import annotations
@@ -64,6 +65,43 @@ def main() -> None:
         )
     if "rgb" in obs_modes:
         print(f"  rgb/state (1 worker, no mcap) {results['rgb', False, 1]['eps_min'] / base:.2f}")
+    print("durability: the journal write that makes each finished episode survive kill -9")
+    for obs in obs_modes:
+        ms, mib = journal_cost(args.task, obs)
+        per_episode_ms = 60_000.0 / results[obs, False, 1]["eps_min"]
+        print(
+            f"  {obs}: {ms:.1f} ms and {mib:.2f} MiB per episode = {100 * ms / per_episode_ms:.1f}% of an episode's "
+            f"recording time ({per_episode_ms:.0f} ms)"
+        )
+
+
+def journal_cost(task: str, obs_mode: str, repeats: int = 10) -> tuple[float, float]:
+    """Milliseconds and MiB to journal one expert episode (fsync'd), the median of `repeats` writes."""
+    import statistics
+    import time
+
+    from kitbench.policies.registry import make_policy
+    from kitbench.recording.journal import EpisodeJournal
+    from kitbench.recording.rollout import run_episode
+    from kitbench.registration import make_env
+
+    env = make_env(task, obs_mode=obs_mode)
+    episode = run_episode(env, make_policy("expert"), seed=0)
+    env.close()
+    folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
+    try:
+        journal = EpisodeJournal(folder / "ds")
+        journal.start({})
+        times, size = [], 0
+        for _ in range(repeats):
+            t = time.perf_counter()
+            journal.add(episode)
+            times.append(time.perf_counter() - t)
+            size = sum(p.stat().st_size for p in journal.root.glob("seed-*"))
+            journal.discard([episode.seed])
+        return 1000.0 * statistics.median(times), size / 2**20
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 if __name__ == "__main__":

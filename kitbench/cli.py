@@ -6,8 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+import kitbench
 from kitbench.errors import KitbenchError
-from kitbench.registration import TASKS
+from kitbench.registration import GYM_NAMESPACE, TASKS, canonical_task
 
 
 def _doctor(args) -> int:
@@ -24,7 +25,7 @@ def _demo(args) -> int:
         episodes=args.episodes,
         eval_episodes=args.eval_episodes,
         workers=args.workers,
-        tasks=tuple(args.task) if args.task else DemoConfig.tasks,
+        tasks=tuple(canonical_task(t) for t in args.task) if args.task else DemoConfig.tasks,
     )
     try:
         run_demo(config)
@@ -52,6 +53,7 @@ def _record(args) -> int:
         "mcap": args.mcap,
         "repo_id": args.repo_id,
         "commit_interval": args.commit_interval,
+        "max_attempts": args.max_attempts,
     }
     try:
         if args.recipe:
@@ -85,7 +87,7 @@ def eval_config_from_args(args):
         if args.seed is not None:
             raise KitbenchError("--seed and --suite exclude each other (a suite fixes its seeds)")
         suite = load_suite(args.suite)
-        if args.task is not None and args.task != suite.task:
+        if args.task is not None and canonical_task(args.task) != suite.task:
             raise KitbenchError(f"--task {args.task} does not match suite {args.suite}, which is for {suite.task}")
         if args.episodes is not None:
             suite = suite.first(args.episodes)
@@ -97,7 +99,13 @@ def eval_config_from_args(args):
         suite = adhoc_suite(args.task, args.episodes, DEFAULT_FIRST_SEED if args.seed is None else args.seed, **modes)
     out = Path(args.out) if args.out else Path("outputs/eval") / suite.task / _slug(args.policy)
     return EvalConfig(
-        suite=suite, policy=args.policy, out=out, workers=args.workers, videos=args.videos, explicit=explicit
+        suite=suite,
+        policy=args.policy,
+        out=out,
+        workers=args.workers,
+        videos=args.videos,
+        explicit=explicit,
+        overwrite=args.overwrite,
     )
 
 
@@ -112,11 +120,17 @@ def _eval(args) -> int:
         return 2
     for line in summary_lines(report, config.out):
         print(line)
+    video_error = report["output"].get("video_error")
+    if video_error:
+        # the scores stand (the report is written), but a run asked for videos it did not get is not a success
+        print(f"kitbench eval: videos failed: {video_error}", file=sys.stderr)
+        return 1
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="kitbench", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"kitbench {kitbench.__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     doctor = sub.add_parser("doctor", help="check Python, packages, the Vulkan device and video decoding")
     doctor.set_defaults(func=_doctor)
@@ -135,10 +149,10 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
     rec = sub.add_parser("record", help="record demonstrations into a LeRobot dataset (+ MCAP logs)")
     rec.add_argument("recipe", nargs="?", help="a recipe file (datasets/<name>.toml); flags override its values")
-    rec.add_argument("--task", help=f"one of {', '.join(TASKS)}")
+    rec.add_argument("--task", help=f"one of {', '.join(TASKS)} (or its gym id {GYM_NAMESPACE}/<task>)")
     rec.add_argument("--episodes", type=int, help="episodes to store")
     rec.add_argument("--out", help="dataset folder (the LeRobot root; MCAP logs go to <out>/mcap)")
-    rec.add_argument("--seed", type=int, help="first seed (default 0); episode k uses seed + k")
+    rec.add_argument("--seed", type=int, help="first seed, >= 0 (default 0); episode k uses seed + k")
     rec.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd")
     rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
     rec.add_argument("--policy", help="expert (default), random or zero")
@@ -147,29 +161,42 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--resume", action="store_true", help="continue an interrupted recording in --out")
     rec.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     rec.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=None, help="write MCAP logs (default on)")
-    rec.add_argument("--repo-id", dest="repo_id", help="dataset repo id (default kitbench/<task>)")
+    rec.add_argument(
+        "--repo-id", dest="repo_id", help="dataset repo id, [namespace/]name as on the Hub (default kitbench/<task>)"
+    )
     rec.add_argument(
         "--commit-interval",
         dest="commit_interval",
         type=float,
         help="seconds between commits (default 30; 0 commits after every episode)",
     )
+    rec.add_argument(
+        "--max-attempts",
+        dest="max_attempts",
+        type=int,
+        help="episodes to attempt, stored or not, before giving up with exit status 3 (default 10 x --episodes)",
+    )
     rec.set_defaults(func=_record)
     ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")
-    ev.add_argument("--task", help=f"one of {', '.join(TASKS)} (implied by --suite)")
+    ev.add_argument(
+        "--task", help=f"one of {', '.join(TASKS)} (or its gym id {GYM_NAMESPACE}/<task>; implied by --suite)"
+    )
     ev.add_argument(
         "--policy",
         default="expert",
         help="expert (default), random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint>",
     )
     ev.add_argument("--episodes", type=int, help="episodes (with --suite: its first N seeds)")
-    ev.add_argument("--seed", type=int, help="first seed without a suite (default 1000000; episode k uses seed + k)")
+    ev.add_argument(
+        "--seed", type=int, help="first seed without a suite, >= 0 (default 1000000; episode k uses seed + k)"
+    )
     ev.add_argument("--suite", help="a suite file (eval/suites/<name>.toml): task, seeds and modes")
     ev.add_argument(
         "--workers", type=int, default=1, help="simulator processes (default 1); results do not depend on it"
     )
     ev.add_argument("--videos", type=int, default=0, help="episodes to film, failures and successes both (default 0)")
     ev.add_argument("--out", help="report folder (default outputs/eval/<task>/<policy>)")
+    ev.add_argument("--overwrite", action="store_true", help="replace an existing report in --out")
     ev.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd; image policies imply rgb")
     ev.add_argument(
         "--control-mode",

@@ -67,17 +67,25 @@ def register_env(name: str, max_episode_steps: int) -> Callable[[E], E]:
 def unregister_env(name: str) -> None:
     """Forget task `name` (for tasks defined on the fly, e.g. in a test or a notebook)."""
     entry = task_entry(name)
-    del TASKS[name]
+    del TASKS[entry.name]
     gym.registry.pop(entry.gym_id, None)
 
 
+def canonical_task(name: str) -> str:
+    """A task's short name, the spelling kitbench stores: its gymnasium id `kitbench/<name>` is accepted too,
+    since that is how gymnasium and ManiSkill users write it. Anything else comes back unchanged."""
+    prefix = f"{GYM_NAMESPACE}/"
+    return name[len(prefix) :] if isinstance(name, str) and name.startswith(prefix) else name
+
+
 def task_entry(name: str) -> TaskEntry:
-    """The registered task `name`, with an error naming every registered task otherwise."""
-    if name not in TASKS:
+    """The registered task `name` (or its gym id), with an error naming every registered task otherwise."""
+    short = canonical_task(name)
+    if not isinstance(short, str) or short not in TASKS:
         raise KitbenchError(f"unknown task {name!r}; valid choices: {', '.join(TASKS) or '(none registered)'}")
-    return TASKS[name]
+    return TASKS[short]
 
 
 def make_env(task: str, **kwargs) -> gym.Env:
-    """`gymnasium.make` for a kitbench task by its short name, with a clear error for unknown names."""
+    """`gymnasium.make` for a kitbench task by its short name (or gym id), with a clear error for unknown names."""
     return gym.make(task_entry(task).gym_id, **kwargs)

@@ -269,6 +269,11 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
         ({"obs_mode": "pointcloud"}, "unknown obs_mode 'pointcloud' for recording; valid choices: state, rgb, rgbd"),
         ({"policy": "oracle"}, "unknown policy 'oracle'; valid choices: expert, random, zero"),
         ({"episodes": 0}, "episodes must be a positive integer, got 0"),
+        ({"seed": -1}, "seed must be a non-negative integer, got -1"),
+        ({"commit_interval": float("nan")}, "commit_interval must be a finite number of seconds >= 0, got nan"),
+        ({"max_attempts": 1}, "max_attempts must be a positive integer >= episodes (2), got 1"),
+        ({"repo_id": "a/b/c"}, "invalid repo_id 'a/b/c': repo id must be in the form"),
+        ({"resume": True}, "nothing to resume at"),
     ],
 )
 def test_bad_input_writes_nothing(tmp_path, kwargs, needle):

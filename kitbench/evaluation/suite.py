@@ -14,10 +14,11 @@ from pathlib import Path
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
-from kitbench.registration import TASKS, task_entry
+from kitbench.registration import TASKS, canonical_task, task_entry
 
 OBS_MODES_EVALUABLE = ("state", "rgb", "rgbd")
 SUITE_KEYS = ("name", "task", "seeds", "obs_mode", "control_mode", "reward_mode", "description")
+SUITE_TABLE = "suite"
 DEFAULT_FIRST_SEED = 1_000_000
 
 
@@ -33,7 +34,9 @@ class Suite:
     source: str | None = field(default=None, compare=False)  # the file it came from
 
     def __post_init__(self):
-        if self.task not in TASKS:
+        # stored by its short name, so reports and output folders are the same whichever spelling was given
+        object.__setattr__(self, "task", canonical_task(self.task))
+        if not isinstance(self.task, str) or self.task not in TASKS:
             raise KitbenchError(f"{self._where()}unknown task {self.task!r}; valid choices: {', '.join(TASKS)}")
         for key, value, valid in (
             ("obs_mode", self.obs_mode, OBS_MODES_EVALUABLE),
@@ -46,8 +49,9 @@ class Suite:
             raise KitbenchError(f"{self._where()}no seeds")
         if len(set(self.seeds)) != len(self.seeds):
             raise KitbenchError(f"{self._where()}seeds repeat")
-        if any(not isinstance(s, int) or isinstance(s, bool) or s < 0 for s in self.seeds):
-            raise KitbenchError(f"{self._where()}seeds must be non-negative integers")
+        bad = [s for s in self.seeds if not _is_seed(s)]
+        if bad:
+            raise KitbenchError(f"{self._where()}seeds must be non-negative integers, got {bad[0]!r}")
 
     def _where(self) -> str:
         return f"suite {self.source}: " if self.source else ""
@@ -77,6 +81,17 @@ class Suite:
         }
 
 
+def _is_seed(value) -> bool:
+    # gymnasium refuses negative seeds deep inside `reset`; bool is an int subclass but never meant as a seed
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def check_seed(seed) -> None:
+    """Refuse a first seed gymnasium would refuse, before anything runs."""
+    if not _is_seed(seed):
+        raise KitbenchError(f"seed must be a non-negative integer, got {seed!r}")
+
+
 def seed_range(start: int, count: int) -> tuple[int, ...]:
     return tuple(range(start, start + count))
 
@@ -85,8 +100,8 @@ def adhoc_suite(task: str, episodes: int, seed: int = DEFAULT_FIRST_SEED, **mode
     """The suite `--task T --episodes N [--seed S]` means: N consecutive seeds from S."""
     if not isinstance(episodes, int) or episodes < 1:
         raise KitbenchError(f"episodes must be a positive integer, got {episodes!r}")
-    if seed < 0:
-        raise KitbenchError(f"seed must be non-negative, got {seed}")
+    check_seed(seed)
+    task = canonical_task(task)
     return Suite(
         name=f"{task}-seeds-{seed}-{seed + episodes - 1}",
         task=task,
@@ -103,6 +118,25 @@ def _parse_seeds(value, path: Path) -> tuple[int, ...]:
     raise KitbenchError(f"suite {path}: seeds must be a list of integers or {{ start = S, count = N }}, got {value!r}")
 
 
+def settings_table(data: dict, table: str, keys, where: str) -> dict:
+    """The settings of a TOML file that holds them at top level or under `[table]`. A mistyped table name would
+    otherwise surface as an unknown key, or the whole table be read as top-level keys, so name it."""
+    tables = sorted(k for k, v in data.items() if isinstance(v, dict) and k != table and k not in keys)
+    if tables:
+        names = ", ".join(f"[{t}]" for t in tables)
+        raise KitbenchError(
+            f"{where}: unknown table {names}; the valid table is [{table}] (or put the keys at the top level)"
+        )
+    if table not in data:
+        return data
+    if not isinstance(data[table], dict):
+        raise KitbenchError(f"{where}: {table} must be a table ([{table}]), got {data[table]!r}")
+    stray = sorted(set(data) - {table})
+    if stray:  # keys above the table header, which would otherwise be ignored
+        raise KitbenchError(f"{where}: key(s) {', '.join(stray)} outside the [{table}] table; move them into it")
+    return data[table]
+
+
 def load_suite(path: str | Path) -> Suite:
     """Read a suite file (keys at top level or under `[suite]`); errors name the file and the key."""
     path = Path(path)
@@ -112,7 +146,7 @@ def load_suite(path: str | Path) -> Suite:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise KitbenchError(f"suite {path}: invalid TOML: {exc}") from exc
-    data = data.get("suite", data)
+    data = settings_table(data, SUITE_TABLE, SUITE_KEYS, f"suite {path}")
     unknown = sorted(set(data) - set(SUITE_KEYS))
     if unknown:
         raise KitbenchError(f"suite {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(SUITE_KEYS)}")
@@ -126,7 +160,7 @@ def load_suite(path: str | Path) -> Suite:
 
 def shipped_suites(task: str, roots: tuple[Path, ...]) -> list[Path]:
     """The suite files under `<root>/eval/suites/` for `task`, the first root that has any (file name order)."""
-    task_entry(task)
+    task = task_entry(task).name
     for root in roots:
         folder = Path(root) / "eval" / "suites"
         found = []
@@ -135,7 +169,9 @@ def shipped_suites(task: str, roots: tuple[Path, ...]) -> list[Path]:
                 data = tomllib.loads(path.read_text())
             except (OSError, tomllib.TOMLDecodeError):
                 continue
-            if data.get("suite", data).get("task") == task:
+            table = data.get(SUITE_TABLE, data)
+            named = table.get("task") if isinstance(table, dict) else None
+            if isinstance(named, str) and canonical_task(named) == task:
                 found.append(path)
         if found:
             return found

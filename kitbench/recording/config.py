@@ -4,13 +4,16 @@ fail before a file is written (`validate`)."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.errors import KitbenchError
+from kitbench.evaluation.suite import check_seed, settings_table
 from kitbench.metadata import RECORDING_FILE
-from kitbench.registration import task_entry
+from kitbench.registration import canonical_task, task_entry
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,14 @@ class RecordConfig:
     # committing after every episode (0) is strictly durable but slow; a kill loses at most this much work,
     # which --resume regenerates exactly (episodes are deterministic in their seed).
     commit_interval: float = 30.0
+    # Episodes attempted (stored or not) before the recording gives up and exits 3; None means 10 x episodes.
+    # Only --only-success with a policy that rarely succeeds gets near it, and then it bounds the run.
+    max_attempts: int | None = None
+
+    def __post_init__(self):
+        # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
+        # --resume comparison do not depend on the spelling
+        object.__setattr__(self, "task", canonical_task(self.task))
 
     @property
     def dataset_repo_id(self) -> str:
@@ -47,6 +58,7 @@ class RecordConfig:
 
 
 RECIPE_KEYS = {f.name for f in dataclasses.fields(RecordConfig)}
+RECIPE_TABLE = "record"
 OBS_MODES_RECORDABLE = ("state", "rgb", "rgbd")
 
 
@@ -59,7 +71,7 @@ def load_recipe(path: Path, **overrides) -> RecordConfig:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise KitbenchError(f"recipe {path}: invalid TOML: {exc}") from exc
-    data = data.get("record", data)
+    data = settings_table(data, RECIPE_TABLE, RECIPE_KEYS, f"recipe {path}")
     unknown = sorted(set(data) - RECIPE_KEYS)
     if unknown:
         raise KitbenchError(
@@ -80,26 +92,32 @@ def validate(config: RecordConfig) -> None:
         raise KitbenchError(
             f"unknown obs_mode {config.obs_mode!r} for recording; valid choices: {', '.join(OBS_MODES_RECORDABLE)}"
         )
-    if not isinstance(config.episodes, int) or config.episodes < 1:
+    if not _is_count(config.episodes):
         raise KitbenchError(f"episodes must be a positive integer, got {config.episodes!r}")
-    if not isinstance(config.workers, int) or config.workers < 1:
+    if not _is_count(config.workers):
         raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
+    check_seed(config.seed)
+    interval = config.commit_interval
+    # nan compares false with everything: a recording asked to commit every nan seconds would never commit
+    if not (isinstance(interval, int | float) and not isinstance(interval, bool) and 0 <= interval < math.inf):
+        raise KitbenchError(f"commit_interval must be a finite number of seconds >= 0, got {interval!r}")
+    if config.max_attempts is not None and not (
+        _is_count(config.max_attempts) and config.max_attempts >= config.episodes
+    ):
+        raise KitbenchError(
+            f"max_attempts must be a positive integer >= episodes ({config.episodes}), got {config.max_attempts!r}"
+        )
+    if config.repo_id is not None:
+        check_repo_id(config.repo_id)
     if config.resume and config.overwrite:
         raise KitbenchError("--resume and --overwrite exclude each other")
-    out = config.out
-    if out.exists() and not (config.resume or config.overwrite):
-        raise KitbenchError(f"output folder {out} exists; pass --resume to continue it or --overwrite to replace it")
-    if config.resume and out.exists():
-        import json
+    _check_output(config)
+    if config.obs_mode != "state":
+        from kitbench.doctor import vulkan_error
 
-        saved_path = out / RECORDING_FILE
-        if not saved_path.is_file():
-            raise KitbenchError(f"cannot resume {out}: it is not a kitbench recording ({RECORDING_FILE} missing)")
-        saved = json.loads(saved_path.read_text())
-        mismatched = {k: (saved.get(k), v) for k, v in config.identity().items() if saved.get(k) != v}
-        if mismatched:
-            detail = ", ".join(f"{k}: recorded {a!r}, asked {b!r}" for k, (a, b) in mismatched.items())
-            raise KitbenchError(f"cannot resume {out} with different settings ({detail})")
+        error = vulkan_error()  # camera images need a renderer; without one the env fails deep inside SAPIEN
+        if error is not None:
+            raise KitbenchError(f"obs_mode {config.obs_mode!r} needs camera images: {error}")
     env = make_recording_env(config)  # raises on a bad control mode, robot or task setting
     try:
         from kitbench.policies.registry import make_policy
@@ -112,6 +130,88 @@ def validate(config: RecordConfig) -> None:
         del policy
     finally:
         env.close()
+
+
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
+def check_repo_id(repo_id) -> None:
+    """Refuse a repo id the Hugging Face Hub would refuse (lerobot writes it into the dataset and pushes under it)."""
+    from huggingface_hub.errors import HFValidationError
+
+    # public, but re-exported through a computed __all__ that mypy cannot read
+    from huggingface_hub.utils import validate_repo_id  # type: ignore[attr-defined]
+
+    try:
+        validate_repo_id(repo_id)
+    except HFValidationError as exc:
+        # the hub's message ends by quoting the id and may advise on an argument the command line does not have
+        reason = (
+            str(exc).splitlines()[0].replace(f": '{repo_id}'", "").replace(" Use `repo_type` argument if needed.", "")
+        )
+        raise KitbenchError(f"invalid repo_id {repo_id!r}: {reason[:1].lower()}{reason[1:]}") from None
+
+
+def _leftovers(out: Path) -> list[Path]:
+    """What a recording at `out` leaves besides the dataset folder: the folders of a commit a kill interrupted
+    (restored by the recorder) and the journal of episodes not yet committed (a kill before the first commit
+    leaves only that)."""
+    from kitbench.recording.dataset import RETIRED_SUFFIX
+    from kitbench.recording.journal import journal_root
+
+    return [p for p in (out.with_name(out.name + RETIRED_SUFFIX), journal_root(out)) if p.is_dir()]
+
+
+def _saved_settings(out: Path) -> list[dict]:
+    """The settings each part of an interrupted recording at `out` was made with."""
+    from kitbench.recording.dataset import RETIRED_SUFFIX, SESSION_SUFFIX
+    from kitbench.recording.journal import SETTINGS_FILE, journal_root
+
+    candidates = [out / RECORDING_FILE]
+    if not out.exists():  # killed inside a commit: the recorder restores the session, else the retired folder
+        session, retired = (out.with_name(out.name + suffix) for suffix in (SESSION_SUFFIX, RETIRED_SUFFIX))
+        candidates = [(session if session.is_dir() else retired) / RECORDING_FILE]
+    candidates.append(journal_root(out) / SETTINGS_FILE)
+    saved = []
+    for path in candidates:
+        if path.is_file():
+            try:
+                saved.append(json.loads(path.read_text()))
+            except (OSError, json.JSONDecodeError) as exc:
+                raise KitbenchError(f"cannot resume {out}: {path} is unreadable ({exc})") from exc
+    return saved
+
+
+def _check_output(config: RecordConfig) -> None:
+    """The output folder fits what was asked: new, or an unfinished recording to --resume, or one to --overwrite."""
+    out = config.out
+    blocker = next((p for p in (out, *out.parents) if p.exists() or p.is_symlink()), None)
+    if blocker is not None and not blocker.is_dir():
+        where = "" if blocker == out else f" ({blocker} is a file)"
+        raise KitbenchError(f"output {out} is not a folder{where}; give --out a folder path")
+    leftovers = _leftovers(out)
+    if not config.resume and not config.overwrite:
+        if out.exists():
+            raise KitbenchError(
+                f"output folder {out} exists; pass --resume to continue it or --overwrite to replace it"
+            )
+        if leftovers:
+            raise KitbenchError(
+                f"an unfinished recording of {out} exists ({leftovers[0]}); pass --resume to continue it or "
+                "--overwrite to replace it"
+            )
+    if not config.resume:
+        return
+    if not out.exists() and not leftovers:
+        raise KitbenchError(f"nothing to resume at {out} (drop --resume to start one)")
+    if out.exists() and not (out / RECORDING_FILE).is_file():
+        raise KitbenchError(f"cannot resume {out}: it is not a kitbench recording ({RECORDING_FILE} missing)")
+    for saved in _saved_settings(out):
+        mismatched = {k: (saved.get(k), v) for k, v in config.identity().items() if saved.get(k) != v}
+        if mismatched:
+            detail = ", ".join(f"{k}: recorded {a!r}, asked {b!r}" for k, (a, b) in mismatched.items())
+            raise KitbenchError(f"cannot resume {out} with different settings ({detail})")
 
 
 def make_recording_env(config: RecordConfig):
