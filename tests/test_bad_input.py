@@ -13,6 +13,7 @@ import pytest
 
 import kitbench
 from kitbench import cli
+from kitbench.errors import KitbenchError
 from kitbench.evaluation.suite import adhoc_suite, load_suite
 from kitbench.recording.config import RecordConfig, load_recipe
 from kitbench.registration import task_entry
@@ -292,3 +293,15 @@ def test_eval_passes_overwrite_on_and_fails_when_its_videos_failed(workdir, caps
     assert printed.out.count("success 0.0%") == 2  # the summary is printed either way
     assert printed.err == "kitbench eval: videos failed: ffmpeg not found\n"
     assert _tree(workdir) == []
+
+
+@pytest.mark.parametrize(
+    "seeds", ['{ start = "x", count = 3 }', "{ start = 5, count = 0 }", "{ start = -1, count = 2 }"]
+)
+def test_a_bad_seed_range_in_a_suite_is_one_line(tmp_path, seeds):
+    from kitbench.evaluation.suite import load_suite
+
+    path = tmp_path / "s.toml"
+    path.write_text(f'[suite]\ntask = "LiftPegUpright-v1"\nseeds = {seeds}\n')
+    with pytest.raises(KitbenchError, match=r"seeds must be a list of integers or \{ start = S, count = N \}"):
+        load_suite(path)

@@ -15,6 +15,7 @@ from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, canonical_task, task_entry
+from kitbench.settings import check_seed, is_seed, settings_table
 
 OBS_MODES_EVALUABLE = ("state", "rgb", "rgbd")
 SUITE_KEYS = ("name", "task", "seeds", "obs_mode", "control_mode", "reward_mode", "description")
@@ -49,7 +50,7 @@ class Suite:
             raise KitbenchError(f"{self._where()}no seeds")
         if len(set(self.seeds)) != len(self.seeds):
             raise KitbenchError(f"{self._where()}seeds repeat")
-        bad = [s for s in self.seeds if not _is_seed(s)]
+        bad = [s for s in self.seeds if not is_seed(s)]
         if bad:
             raise KitbenchError(f"{self._where()}seeds must be non-negative integers, got {bad[0]!r}")
 
@@ -81,17 +82,6 @@ class Suite:
         }
 
 
-def _is_seed(value) -> bool:
-    # gymnasium refuses negative seeds deep inside `reset`; bool is an int subclass but never meant as a seed
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-def check_seed(seed) -> None:
-    """Refuse a first seed gymnasium would refuse, before anything runs."""
-    if not _is_seed(seed):
-        raise KitbenchError(f"seed must be a non-negative integer, got {seed!r}")
-
-
 def seed_range(start: int, count: int) -> tuple[int, ...]:
     return tuple(range(start, start + count))
 
@@ -114,27 +104,10 @@ def _parse_seeds(value, path: Path) -> tuple[int, ...]:
     if isinstance(value, list):
         return tuple(value)
     if isinstance(value, dict) and set(value) == {"start", "count"}:
-        return seed_range(int(value["start"]), int(value["count"]))
+        start, count = value["start"], value["count"]
+        if is_seed(start) and isinstance(count, int) and not isinstance(count, bool) and count >= 1:
+            return seed_range(start, count)
     raise KitbenchError(f"suite {path}: seeds must be a list of integers or {{ start = S, count = N }}, got {value!r}")
-
-
-def settings_table(data: dict, table: str, keys, where: str) -> dict:
-    """The settings of a TOML file that holds them at top level or under `[table]`. A mistyped table name would
-    otherwise surface as an unknown key, or the whole table be read as top-level keys, so name it."""
-    tables = sorted(k for k, v in data.items() if isinstance(v, dict) and k != table and k not in keys)
-    if tables:
-        names = ", ".join(f"[{t}]" for t in tables)
-        raise KitbenchError(
-            f"{where}: unknown table {names}; the valid table is [{table}] (or put the keys at the top level)"
-        )
-    if table not in data:
-        return data
-    if not isinstance(data[table], dict):
-        raise KitbenchError(f"{where}: {table} must be a table ([{table}]), got {data[table]!r}")
-    stray = sorted(set(data) - {table})
-    if stray:  # keys above the table header, which would otherwise be ignored
-        raise KitbenchError(f"{where}: key(s) {', '.join(stray)} outside the [{table}] table; move them into it")
-    return data[table]
 
 
 def load_suite(path: str | Path) -> Suite:

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.errors import KitbenchError
-from kitbench.evaluation.suite import check_seed, settings_table
 from kitbench.metadata import RECORDING_FILE
 from kitbench.registration import canonical_task, task_entry
+from kitbench.settings import check_seed, settings_table
 
 
 @dataclass(frozen=True)
