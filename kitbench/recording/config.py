@@ -31,9 +31,9 @@ class RecordConfig:
     overwrite: bool = False
     mcap: bool = True
     repo_id: str | None = None
-    # Seconds between commits. Opening a session costs ~1.5 s (lerobot re-reads the episode index), so
-    # committing after every episode (0) is strictly durable but slow; a kill loses at most this much work,
-    # which --resume regenerates exactly (episodes are deterministic in their seed).
+    # Seconds between commits (publishing the episodes stored since the last one as a loadable LeRobot dataset).
+    # Opening a session costs ~1.5 s (lerobot re-reads the episode index), so commits are periodic; durability does
+    # not depend on them: every finished episode is journaled first (recording/journal.py).
     commit_interval: float = 30.0
     # Episodes attempted (stored or not) before the recording gives up and exits 3; None means 10 x episodes.
     # Only --only-success with a policy that rarely succeeds gets near it, and then it bounds the run.
