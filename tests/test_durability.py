@@ -192,3 +192,29 @@ def test_a_journal_with_episodes_is_never_overwritten_by_accident(tmp_path):
         )
     summary = record(RecordConfig(task=TASK, episodes=5, out=out, mcap=False, resume=True), progress=False)
     assert summary.stored == 5 and [e["seed"] for e in _dataset(out)[1]] == [0, 1, 2, 3, 4]
+
+
+def test_an_episode_whose_simulation_failed_is_not_stored(tmp_path, monkeypatch, capsys):
+    from kitbench.envs.tabletop import TabletopEnv
+
+    reset, step = TabletopEnv.reset, TabletopEnv.step
+
+    def reset_noting_the_seed(self, *, seed=None, options=None):
+        self.test_seed = seed
+        return reset(self, seed=seed, options=options)
+
+    def step_failing_on_seed_1(self, action):
+        obs, reward, terminated, truncated, info = step(self, action)
+        if self.test_seed == 1 and self.elapsed_steps == 3:
+            return obs, 0.0, False, True, {**info, "success": False, "physics_error": "obj left the workspace"}
+        return obs, reward, terminated, truncated, info
+
+    monkeypatch.setattr(TabletopEnv, "reset", reset_noting_the_seed)
+    monkeypatch.setattr(TabletopEnv, "step", step_failing_on_seed_1)
+    out = tmp_path / "ds"
+    summary = record(RecordConfig(task=TASK, episodes=3, out=out), progress=False)
+    assert summary.physics_errors == 1 and summary.stored == 3 and summary.attempted == 4
+    assert "seed 1: not stored, the simulation failed: obj left the workspace" in capsys.readouterr().err
+    assert [e["seed"] for e in _dataset(out)[1]] == [0, 2, 3]
+    assert sorted(p.name for p in (out / "mcap").iterdir()) == [f"episode_{i:06d}.mcap" for i in range(3)]
+    assert any("simulation failed: 1 attempt(s)" in line for line in summary.lines(out))

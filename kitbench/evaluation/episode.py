@@ -25,6 +25,7 @@ class EpisodeResult:
     failure: str | None  # category, None for a success
     config: dict = field(default_factory=dict)  # the task's episode_config()
     final: dict = field(default_factory=dict)  # the last step's task measurements (errors, tilt, ...)
+    physics_error: str | None = None  # what went wrong when the simulation failed (`info["physics_error"]`)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -69,4 +70,5 @@ def evaluate_episode(env, policy, seed: int, frames: list | None = None) -> Epis
         failure=None if first is not None else failure_category(env, info, history),
         config=u.episode_config(),
         final=_scalars(info),
+        physics_error=info.get("physics_error"),
     )

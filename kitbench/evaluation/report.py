@@ -11,6 +11,7 @@ from pathlib import Path
 
 import kitbench
 from kitbench.evaluation.episode import EpisodeResult
+from kitbench.evaluation.outcomes import PHYSICS_ERROR
 from kitbench.evaluation.stats import describe, rate
 from kitbench.evaluation.suite import Suite
 from kitbench.registration import task_entry
@@ -38,7 +39,8 @@ def build_report(suite: Suite, policy: str, results: list[EpisodeResult], contro
     successes = [r for r in results if r.success]
     names = list(results[0].criteria) if results else []
     env_class = task_entry(suite.task).env_class
-    categories = dict.fromkeys(env_class.failure_categories, 0)
+    # the task's categories in its stage order, then episodes the simulator could not finish
+    categories = dict.fromkeys((*env_class.failure_categories, PHYSICS_ERROR), 0)
     for r in results:
         if r.failure is not None:
             categories[r.failure] = categories.get(r.failure, 0) + 1
@@ -155,14 +157,20 @@ def markdown(report: dict) -> str:
                 f"| {row[id_key]} | {row[name]} | {row['episodes']} | {row['rate']:.0%} | "
                 f"{lo:.0%}–{hi:.0%} | " + " | ".join(f"{row[c]:.0%}" for c in crit) + " |"
             )
+    errors = [e for e in report["per_episode"] if e.get("physics_error")]
+    if errors:
+        lines += ["", "## Physics errors", ""]
+        lines += [f"- seed {e['seed']}: {e['physics_error']}" for e in errors]
     output = report.get("output", {})
-    if output.get("videos"):
+    if output.get("videos") or output.get("video_error"):
         lines += ["", "## Videos", ""]
         lines += [
             f"- seed {v['seed']} ({'success' if v['success'] else 'failure: ' + str(v['failure'])}): "
             f"[{v['path']}]({v['path']})"
-            for v in output["videos"]
+            for v in output.get("videos", [])
         ]
+        if output.get("video_error"):
+            lines.append(f"- videos could not be made: {output['video_error']}")
     if output.get("plots"):
         lines += ["", "## Plots", ""]
         lines += [f"![{Path(p).stem}]({p})" for p in output["plots"]]

@@ -1,8 +1,10 @@
-"""Run a policy over a suite's seeds (in one or several processes), film a few episodes and write the report.
+"""Run a policy over a suite's seeds (in one or several processes), write the report, then film a few episodes.
 
 Episodes are scored without rendering unless the policy itself looks at images. Videos are made afterwards by
 replaying the chosen seeds in an env that renders: episodes are deterministic in their seed, so the filmed
-episode is the scored one (the report says so per video, having checked outcome, length and return).
+episode is the scored one (the report says so per video, having checked outcome, length and return). The report
+is written before the videos are made, so a machine that cannot render (no Vulkan device) still gets its scores:
+the report then says why there are no videos (`output.video_error`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ class EvalConfig:
     out: Path
     workers: int = 1
     videos: int = 0
+    # Replace the report in an existing non-empty `out` folder (its report.json/.md, plots and videos; nothing
+    # else in the folder is touched). Without it such a folder is refused.
+    overwrite: bool = False
     # Suite settings the user chose explicitly; a policy's own needs may change the others (e.g. an
     # image-based policy turns obs_mode "state" into "rgb") but must not contradict these.
     explicit: frozenset[str] = frozenset()
@@ -148,6 +153,16 @@ def pick_video_seeds(results: list[EpisodeResult], count: int) -> list[EpisodeRe
     return [r for r in results if id(r) in chosen]
 
 
+def check_out_folder(out: Path, overwrite: bool) -> None:
+    """Refuse a report folder that is not a folder, or that holds something already (unless `overwrite`)."""
+    if out.exists() and not out.is_dir():
+        raise KitbenchError(
+            f"report folder {out} is a file; --out must be a folder (new, empty, or a report with --overwrite)"
+        )
+    if out.is_dir() and not overwrite and any(out.iterdir()):
+        raise KitbenchError(f"report folder {out} exists; pass --overwrite to replace it")
+
+
 def validate(config: EvalConfig):
     """Every check that can fail before anything is written or run at length; returns (suite, policy)."""
     from kitbench.policies.registry import make_policy
@@ -156,8 +171,15 @@ def validate(config: EvalConfig):
         raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
     if not isinstance(config.videos, int) or config.videos < 0:
         raise KitbenchError(f"videos must be a non-negative integer, got {config.videos!r}")
+    check_out_folder(Path(config.out), config.overwrite)
     policy = make_policy(config.policy)
     suite = fit_suite_to_policy(config.suite, policy, config.explicit)
+    if suite.obs_mode != "state":
+        from kitbench.doctor import vulkan_error
+
+        error = vulkan_error()  # scoring on camera images needs a renderer; without one SAPIEN fails deep inside
+        if error is not None:
+            raise KitbenchError(f"obs_mode {suite.obs_mode!r} needs camera images: {error}")
     env = _make_env(suite)
     try:
         obs, info = env.reset(seed=suite.seeds[0])
@@ -170,9 +192,9 @@ def validate(config: EvalConfig):
 
 
 def run_eval(config: EvalConfig, progress: bool = True) -> dict:
-    from kitbench.evaluation.plots import write_plots
-    from kitbench.evaluation.report import build_report, markdown, write_json
-
+    """Score the policy on every seed, write the report (report.json, report.md, plots), then make the videos
+    and write the report again with them. A failed video pass leaves the report, with `output.video_error`
+    saying why, and returns normally."""
     suite, policy, timestep, fps = validate(config)
     del policy
     out = Path(config.out)
@@ -184,6 +206,31 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
 
     start = time.monotonic()
     runner = _Runner(suite, config.policy, min(config.workers, len(suite.seeds)))
+    try:
+        results = _score(runner, suite, progress)
+        scored_seconds = time.monotonic() - start
+        report = _write_report(suite, config.policy, results, timestep, out)
+        report["timing"] = {
+            "seconds": time.monotonic() - start,
+            "scoring_seconds": scored_seconds,
+            "workers": runner.workers,
+            "episodes_per_minute": 60.0 * len(results) / max(scored_seconds, 1e-9),
+        }
+        _save(report, out)
+        chosen = pick_video_seeds(results, config.videos)
+        if chosen:
+            try:
+                _film(runner, chosen, out, fps, report["output"]["videos"])
+            except Exception as exc:  # noqa: BLE001 - the scores stand whatever stops the videos; the report says why
+                report["output"]["video_error"] = _video_error(exc)
+            report["timing"]["seconds"] = time.monotonic() - start
+            _save(report, out)
+    finally:
+        runner.close()
+    return report
+
+
+def _score(runner: _Runner, suite: Suite, progress: bool) -> list[EpisodeResult]:
     bar = None
     if progress:
         from kitbench.progress import progress as progress_bar
@@ -196,48 +243,63 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
-        if bar is not None:
-            bar.close()
-        scored_seconds = time.monotonic() - start
-        chosen = pick_video_seeds(results, config.videos)
-        jobs = [
-            (r.seed, str(out / VIDEOS_DIR / f"seed{r.seed}_{'success' if r.success else 'failure'}.mp4"), fps)
-            for r in chosen
-        ]
-        videos = []
-        for scored, replayed, (_, path, _) in zip(chosen, runner.map(_worker_video, jobs), jobs, strict=True):
-            same = (replayed.success, replayed.length, replayed.episode_return) == (
-                scored.success,
-                scored.length,
-                scored.episode_return,
-            )
-            videos.append(
-                {
-                    "seed": scored.seed,
-                    "success": scored.success,
-                    "failure": scored.failure,
-                    "path": str(Path(path).relative_to(out)),
-                    "matches_scored_episode": same,
-                }
-            )
     finally:
         if bar is not None:
             bar.close()
-        runner.close()
+    return results
 
-    report = build_report(suite, config.policy, results, timestep)
-    report["output"] = {"videos": videos}
+
+def _write_report(suite: Suite, policy: str, results: list[EpisodeResult], timestep: float, out: Path) -> dict:
+    from kitbench.evaluation.plots import write_plots
+    from kitbench.evaluation.report import build_report
+
+    report = build_report(suite, policy, results, timestep)
+    report["output"] = {"videos": []}
     report["output"]["plots"] = [str(p.relative_to(out)) for p in write_plots(report, out / PLOTS_DIR)]
-    seconds = time.monotonic() - start
-    report["timing"] = {
-        "seconds": seconds,
-        "scoring_seconds": scored_seconds,
-        "workers": runner.workers,
-        "episodes_per_minute": 60.0 * len(results) / max(scored_seconds, 1e-9),
-    }
-    (out / REPORT_MD).write_text(markdown(report))
-    write_json(report, out / REPORT_JSON)  # last: a report.json means a complete evaluation
     return report
+
+
+def _save(report: dict, out: Path) -> None:
+    from kitbench.evaluation.report import markdown, write_json
+
+    (out / REPORT_MD).write_text(markdown(report))
+    write_json(report, out / REPORT_JSON)  # last: a report.json means the report.md beside it is complete
+
+
+def _film(runner: _Runner, chosen: list[EpisodeResult], out: Path, fps: int, videos: list[dict]) -> None:
+    """Replay and film `chosen`, appending each video to `videos` as soon as it is written (so the ones made
+    before a failure stay listed)."""
+    jobs = [
+        (r.seed, str(out / VIDEOS_DIR / f"seed{r.seed}_{'success' if r.success else 'failure'}.mp4"), fps)
+        for r in chosen
+    ]
+    for scored, replayed, (_, path, _) in zip(chosen, runner.map(_worker_video, jobs), jobs, strict=True):
+        same = (replayed.success, replayed.length, replayed.episode_return) == (
+            scored.success,
+            scored.length,
+            scored.episode_return,
+        )
+        videos.append(
+            {
+                "seed": scored.seed,
+                "success": scored.success,
+                "failure": scored.failure,
+                "path": str(Path(path).relative_to(out)),
+                "matches_scored_episode": same,
+            }
+        )
+
+
+def _video_error(exc: Exception) -> str:
+    """One line on why the videos could not be made: `kitbench doctor`'s line when this machine has no render
+    device, else the exception's type and first line."""
+    from kitbench.doctor import vulkan_error
+
+    no_device = vulkan_error()
+    if no_device is not None:
+        return no_device
+    lines = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
 
 
 def summary_lines(report: dict, out: Path) -> list[str]:
