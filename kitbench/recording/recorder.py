@@ -240,6 +240,7 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     try:
         with _StopSignals() as stops:
             # episodes a killed run had finished but not committed: publish them first, in seed order
+            replayed: list[int] = []
             for seed in journal.seeds():
                 if summary.stored >= config.episodes:
                     break
@@ -247,8 +248,14 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
                 with stops.storing():
                     _publish(writer, journal, episode, mcap_path)
                     published.append(seed)
+                    replayed.append(seed)
                     summary.stored += 1
-            last = max([*done_seeds, *published], default=config.seed - 1)
+            if published:
+                # publish them now: a run killed again before its first commit would otherwise replay them all
+                # again, and kills coming faster than the replay would stall the recording
+                with stops.storing():
+                    _commit(writer, journal, published)
+            last = max([*done_seeds, *replayed], default=config.seed - 1)
             next_seed = max(last + 1, config.seed)
             remaining = config.episodes - summary.stored
             limit = config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
