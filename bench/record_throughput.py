@@ -76,7 +76,7 @@ def main() -> None:
 
 
 def journal_cost(task: str, obs_mode: str, repeats: int = 10) -> tuple[float, float]:
-    """Milliseconds and MiB to journal one expert episode (fsync'd), the median of `repeats` writes."""
+    """Milliseconds and MiB to journal one expert episode with its MCAP log (fsync'd), the median of `repeats`."""
     import statistics
     import time
 
@@ -85,17 +85,18 @@ def journal_cost(task: str, obs_mode: str, repeats: int = 10) -> tuple[float, fl
     from kitbench.recording.rollout import run_episode
     from kitbench.registration import make_env
 
-    env = make_env(task, obs_mode=obs_mode)
-    episode = run_episode(env, make_policy("expert"), seed=0)
-    env.close()
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
+    env = make_env(task, obs_mode=obs_mode)
+    episode = run_episode(env, make_policy("expert"), seed=0, mcap_path=folder / "log.mcap")
+    env.close()
     try:
         journal = EpisodeJournal(folder / "ds")
         journal.start({})
         times, size = [], 0
         for _ in range(repeats):
+            shutil.copy(folder / "log.mcap", folder / "copy.mcap")
             t = time.perf_counter()
-            journal.add(episode)
+            journal.add(episode, folder / "copy.mcap")
             times.append(time.perf_counter() - t)
             size = sum(p.stat().st_size for p in journal.root.glob("seed-*"))
             journal.discard([episode.seed])
