@@ -3,6 +3,10 @@ seeds."""
 
 from __future__ import annotations
 
+import tomllib
+from collections.abc import Collection
+from pathlib import Path
+
 from kitbench.errors import KitbenchError
 
 
@@ -34,3 +38,22 @@ def settings_table(data: dict, table: str, keys, where: str) -> dict:
     if stray:  # keys above the table header, which would otherwise be ignored
         raise KitbenchError(f"{where}: key(s) {', '.join(stray)} outside the [{table}] table; move them into it")
     return data[table]
+
+
+def read_settings(path: str | Path, kind: str, table: str, keys: Collection[str]) -> dict:
+    """The settings in the TOML file `path` (at top level or under `[table]`), each key one of `keys` (listed in
+    their order, or sorted for a set); every error names the `kind` of file ("recipe", "suite") and its path."""
+    path = Path(path)
+    where = f"{kind} {path}"
+    if not path.is_file():
+        raise KitbenchError(f"{where} does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise KitbenchError(f"{where}: invalid TOML: {exc}") from exc
+    data = settings_table(data, table, keys, where)
+    unknown = sorted(set(data) - set(keys))
+    if unknown:
+        valid = ", ".join(sorted(keys) if isinstance(keys, set | frozenset) else keys)
+        raise KitbenchError(f"{where}: unknown key(s) {', '.join(unknown)}; valid keys: {valid}")
+    return data

@@ -15,7 +15,7 @@ from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, canonical_task, task_entry
-from kitbench.settings import check_seed, is_seed, settings_table
+from kitbench.settings import check_seed, is_seed, read_settings
 
 OBS_MODES_EVALUABLE = ("state", "rgb", "rgbd")
 SUITE_KEYS = ("name", "task", "seeds", "obs_mode", "control_mode", "reward_mode", "description")
@@ -113,16 +113,7 @@ def _parse_seeds(value, path: Path) -> tuple[int, ...]:
 def load_suite(path: str | Path) -> Suite:
     """Read a suite file (keys at top level or under `[suite]`); errors name the file and the key."""
     path = Path(path)
-    if not path.is_file():
-        raise KitbenchError(f"suite {path} does not exist")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise KitbenchError(f"suite {path}: invalid TOML: {exc}") from exc
-    data = settings_table(data, SUITE_TABLE, SUITE_KEYS, f"suite {path}")
-    unknown = sorted(set(data) - set(SUITE_KEYS))
-    if unknown:
-        raise KitbenchError(f"suite {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(SUITE_KEYS)}")
+    data = read_settings(path, "suite", SUITE_TABLE, SUITE_KEYS)
     for key in ("task", "seeds"):
         if key not in data:
             raise KitbenchError(f"suite {path}: missing required key {key!r}")

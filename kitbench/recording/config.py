@@ -6,14 +6,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
 from kitbench.registration import canonical_task, task_entry
-from kitbench.settings import check_seed, settings_table
+from kitbench.settings import check_seed, read_settings
 
 
 @dataclass(frozen=True)
@@ -65,18 +64,7 @@ OBS_MODES_RECORDABLE = ("state", "rgb", "rgbd")
 def load_recipe(path: Path, **overrides) -> RecordConfig:
     """A TOML recipe: the same keys as the command line's long options (`[record]` table or top level)."""
     path = Path(path)
-    if not path.is_file():
-        raise KitbenchError(f"recipe {path} does not exist")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise KitbenchError(f"recipe {path}: invalid TOML: {exc}") from exc
-    data = settings_table(data, RECIPE_TABLE, RECIPE_KEYS, f"recipe {path}")
-    unknown = sorted(set(data) - RECIPE_KEYS)
-    if unknown:
-        raise KitbenchError(
-            f"recipe {path}: unknown key(s) {', '.join(unknown)}; valid keys: {', '.join(sorted(RECIPE_KEYS))}"
-        )
+    data = read_settings(path, "recipe", RECIPE_TABLE, RECIPE_KEYS)
     for key in ("task", "episodes", "out"):
         if key not in data and key not in overrides:
             raise KitbenchError(f"recipe {path}: missing required key {key!r}")
