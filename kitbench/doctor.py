@@ -68,6 +68,18 @@ def vulkan_error() -> str | None:
     return None if check.ok else f"{check.detail}: {check.fix}"
 
 
+def require_renderer(obs_mode: str) -> None:
+    """Refuse an image observation mode on a machine that cannot render, with the doctor's line: without a
+    renderer the env fails deep inside SAPIEN, after output folders exist."""
+    from kitbench.envs.modes import IMAGE_OBS_MODES
+    from kitbench.errors import KitbenchError
+
+    if obs_mode in IMAGE_OBS_MODES:
+        error = vulkan_error()
+        if error is not None:
+            raise KitbenchError(f"obs_mode {obs_mode!r} needs camera images: {error}")
+
+
 def check_video_decoding() -> Check:
     """Encode a tiny clip with ffmpeg and decode it with torchcodec, the way lerobot reads datasets."""
     fix = "install FFmpeg (`apt-get install ffmpeg`, done by `make test` when root) for torchcodec video decoding"

@@ -174,12 +174,9 @@ def validate(config: EvalConfig):
     check_out_folder(Path(config.out), config.overwrite)
     policy = make_policy(config.policy)
     suite = fit_suite_to_policy(config.suite, policy, config.explicit)
-    if suite.obs_mode != "state":
-        from kitbench.doctor import vulkan_error
+    from kitbench.doctor import require_renderer
 
-        error = vulkan_error()  # scoring on camera images needs a renderer; without one SAPIEN fails deep inside
-        if error is not None:
-            raise KitbenchError(f"obs_mode {suite.obs_mode!r} needs camera images: {error}")
+    require_renderer(suite.obs_mode)
     env = _make_env(suite)
     try:
         obs, info = env.reset(seed=suite.seeds[0])

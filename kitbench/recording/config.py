@@ -100,12 +100,9 @@ def validate(config: RecordConfig) -> None:
     if config.resume and config.overwrite:
         raise KitbenchError("--resume and --overwrite exclude each other")
     _check_output(config)
-    if config.obs_mode != "state":
-        from kitbench.doctor import vulkan_error
+    from kitbench.doctor import require_renderer
 
-        error = vulkan_error()  # camera images need a renderer; without one the env fails deep inside SAPIEN
-        if error is not None:
-            raise KitbenchError(f"obs_mode {config.obs_mode!r} needs camera images: {error}")
+    require_renderer(config.obs_mode)
     env = make_recording_env(config)  # raises on a bad control mode, robot or task setting
     try:
         from kitbench.policies.registry import make_policy

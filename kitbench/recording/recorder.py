@@ -188,7 +188,7 @@ def _say(message: str) -> None:
     print(f"kitbench record: {message}", file=sys.stderr, flush=True)
 
 
-def _publish(writer, journal: EpisodeJournal, episode, mcap_path: Path | None) -> None:
+def _publish(writer, episode, mcap_path: Path | None) -> None:
     """Add a journaled episode to the open session, its MCAP log linked in (the journal keeps its copy until
     the commit publishes the session)."""
     index = writer.add_episode(episode, {})
@@ -246,7 +246,7 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
                     break
                 episode, mcap_path = journal.load(seed)
                 with stops.storing():
-                    _publish(writer, journal, episode, mcap_path)
+                    _publish(writer, episode, mcap_path)
                     published.append(seed)
                     replayed.append(seed)
                     summary.stored += 1
@@ -292,7 +292,7 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
                 else:
                     with stops.storing():
                         mcap_path = journal.add(episode, mcap_path)
-                        _publish(writer, journal, episode, mcap_path)
+                        _publish(writer, episode, mcap_path)
                         published.append(episode.seed)
                         summary.stored += 1
                         summary.frames += episode.length
