@@ -54,6 +54,8 @@ def _record(args) -> int:
         "repo_id": args.repo_id,
         "commit_interval": args.commit_interval,
         "max_attempts": args.max_attempts,
+        "action_noise": args.action_noise,
+        "settle_steps": args.settle_steps,
     }
     try:
         if args.recipe:
@@ -175,6 +177,19 @@ def build_parser() -> argparse.ArgumentParser:
         dest="max_attempts",
         type=int,
         help="episodes to attempt, stored or not, before giving up with exit status 3 (default 10 x --episodes)",
+    )
+    rec.add_argument(
+        "--action-noise",
+        dest="action_noise",
+        type=float,
+        help="execute actions with seeded Gaussian noise, in units of the control mode's noise unit (0.02 rad a "
+        "joint); the dataset keeps the clean actions as labels (default 0: none)",
+    )
+    rec.add_argument(
+        "--settle-steps",
+        dest="settle_steps",
+        type=int,
+        help="steps recorded after an episode's first success, the policy finishing the task (default 0)",
     )
     rec.set_defaults(func=_record)
     ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")

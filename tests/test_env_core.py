@@ -13,7 +13,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import kitbench  # noqa: F401
-from kitbench.geometry import quat_to_matrix
+from kitbench.geometry import axis_angle_to_matrix, quat_to_matrix
 from kitbench.sim.scene import set_actor_pose
 from kitbench.tasks.lift_peg_upright import LYING_QUAT, PEG_HALF_WIDTH
 
@@ -35,8 +35,8 @@ def _hold(env, steps):
 
 # -- control modes --------------------------------------------------------------------------------
 @pytest.mark.parametrize("axis", [0, 1, 2])
-def test_ee_delta_pos_moves_tcp_by_the_commanded_amount(axis):
-    env = make(control_mode="pd_ee_delta_pos")
+def test_ee_target_delta_pos_moves_tcp_by_the_commanded_amount(axis):
+    env = make(control_mode="pd_ee_target_delta_pos")
     env.reset(seed=0)
     u = env.unwrapped
     start = u.robot.tcp_pose()
@@ -53,8 +53,8 @@ def test_ee_delta_pos_moves_tcp_by_the_commanded_amount(axis):
     assert np.abs(quat_to_matrix(end.q) - quat_to_matrix(start.q)).max() < 0.01  # orientation kept
 
 
-def test_ee_delta_pose_rotates_about_the_tcp():
-    env = make(control_mode="pd_ee_delta_pose")
+def test_ee_target_delta_pose_rotates_about_the_tcp():
+    env = make(control_mode="pd_ee_target_delta_pose")
     env.reset(seed=0)
     u = env.unwrapped
     start = u.robot.tcp_pose()
@@ -81,7 +81,7 @@ def test_ee_pose_reaches_an_absolute_target():
     assert quat_to_matrix(tcp.q)[2, 2] == pytest.approx(-1.0, abs=1e-3)
 
 
-def test_joint_pos_and_joint_delta_pos_reach_their_targets():
+def test_joint_pos_and_joint_target_delta_pos_reach_their_targets():
     env = make(control_mode="pd_joint_pos")
     env.reset(seed=0)
     target = env.unwrapped.robot.qpos()[:7] + np.array([0.3, -0.2, 0.1, 0.2, -0.1, 0.2, 0.4])
@@ -89,7 +89,7 @@ def test_joint_pos_and_joint_delta_pos_reach_their_targets():
         env.step(np.append(target, -1).astype(np.float32))
     np.testing.assert_allclose(env.unwrapped.robot.qpos()[:7], target, atol=0.01)
 
-    env = make(control_mode="pd_joint_delta_pos")
+    env = make(control_mode="pd_joint_target_delta_pos")
     env.reset(seed=0)
     start = env.unwrapped.robot.qpos()[:7].copy()
     delta = np.array([0.05, 0, 0, 0, 0, 0, -0.05, -1], dtype=np.float32)
@@ -97,6 +97,56 @@ def test_joint_pos_and_joint_delta_pos_reach_their_targets():
         env.step(delta)
     _hold(env, 6)
     np.testing.assert_allclose(env.unwrapped.robot.qpos()[:7] - start, [0.5, 0, 0, 0, 0, 0, -0.5], atol=0.01)
+
+
+@pytest.mark.parametrize("mode", ["pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose"])
+def test_delta_modes_apply_the_action_to_the_measured_state(mode):
+    """ManiSkill's semantics: the target is the measured state plus the action, whatever was commanded before, so
+    an observation and an action always mean the same target (the `*_target_delta_*` modes accumulate)."""
+    env = make(control_mode=mode)
+    env.reset(seed=0)
+    u = env.unwrapped
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        q = u.robot.qpos()[:7].copy()
+        action = rng.uniform(u.action_space.low, u.action_space.high).astype(np.float32)
+        env.step(action)
+        if mode == "pd_joint_delta_pos":
+            np.testing.assert_allclose(u.controller.joint_target, q + action[:7], atol=1e-6)
+            continue
+        measured = u.controller.kinematics.tcp_pose(q)
+        target = u.controller.tcp_target
+        np.testing.assert_allclose(target[:3, 3], measured[:3, 3] + action[:3], atol=1e-6)
+        if mode == "pd_ee_delta_pose":
+            rotated = axis_angle_to_matrix(action[3:6].astype(np.float64)) @ measured[:3, :3]
+            np.testing.assert_allclose(target[:3, :3], rotated, atol=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["pd_joint_delta_pos", "pd_joint_target_delta_pos"])
+def test_target_delta_accumulates_where_delta_restarts_from_the_joints(mode):
+    env = make(control_mode=mode)
+    env.reset(seed=0)
+    u = env.unwrapped
+    start = u.robot.qpos()[:7].copy()
+    step = np.array([0.1, 0, 0, 0, 0, 0, 0, -1], dtype=np.float32)
+    env.step(step)
+    after_first = u.robot.qpos()[0]
+    env.step(step)
+    target = u.controller.joint_target[0]
+    if mode == "pd_joint_target_delta_pos":
+        assert target == pytest.approx(start[0] + 0.2, abs=1e-6)  # two steps on the previous target
+    else:
+        assert target == pytest.approx(after_first + 0.1, abs=1e-6)  # one step on the joint, which lags
+        assert target < start[0] + 0.2 - 0.01
+
+
+@pytest.mark.parametrize("mode", ["pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose"])
+def test_zero_delta_holds_the_arm_still(mode):
+    env = make(control_mode=mode)
+    env.reset(seed=0)
+    start = env.unwrapped.robot.qpos()[:7].copy()
+    _hold(env, 20)
+    np.testing.assert_allclose(env.unwrapped.robot.qpos()[:7], start, atol=2e-3)
 
 
 def test_gripper_opens_and_closes():

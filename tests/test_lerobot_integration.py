@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,7 +25,9 @@ OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
 def checkpoint(tmp_path_factory):
     base = tmp_path_factory.mktemp("lerobot")
     data = base / "lpu_state"
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False), progress=False)
+    # the shipped config's control mode (its in-training evaluation runs the env in it)
+    config = RecordConfig(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False, control_mode="pd_joint_pos")
+    record(config, progress=False)
     out = base / "train"
     cmd = [
         str(BIN / "lerobot-train"),
@@ -35,11 +38,17 @@ def checkpoint(tmp_path_factory):
         "--batch_size=4",
         "--num_workers=0",
         "--save_freq=4",
-        "--env_eval_freq=0",
+        # evaluation during training on the kitbench env, two async envs, as the shipped configs do
+        "--env_eval_freq=4",
+        "--eval.n_episodes=2",
+        "--eval.batch_size=2",
+        "--eval.use_async_envs=true",
         "--log_freq=2",
     ]
     run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=base)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    log = run.stdout + run.stderr
+    assert re.search(r"step:4 .*success:\d", log), log[-3000:]  # the evaluation's success was logged
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert (ckpt / "model.safetensors").is_file()
     assert json.loads((ckpt / "config.json").read_text())["pretrained_backbone_weights"] is None
@@ -98,6 +107,8 @@ def test_kitbench_eval_scores_the_trained_checkpoint(checkpoint, tmp_path):
     assert result.returncode == 0, result.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["policy"] == f"lerobot:{checkpoint}" and report["episodes"] == 2
+    # the suite names pd_joint_delta_pos for the expert; the policy runs in the mode it was trained in
+    assert report["suite"]["control_mode"] == "pd_joint_pos"
     assert all(e["length"] == 50 or e["success"] for e in report["per_episode"])
     assert (out / "report.md").is_file() and (out / "plots" / "success.png").is_file()
 
@@ -106,8 +117,8 @@ def test_kitbench_eval_refuses_another_control_mode_than_the_training_one(checkp
     from kitbench.evaluation.runner import EvalConfig, validate
     from kitbench.evaluation.suite import adhoc_suite
 
-    suite = adhoc_suite("LiftPegUpright-v1", 1, control_mode="pd_joint_pos")
-    with pytest.raises(ValueError, match=r"trained on pd_joint_delta_pos actions.*--control-mode pd_joint_delta_pos"):
+    suite = adhoc_suite("LiftPegUpright-v1", 1, control_mode="pd_joint_delta_pos")
+    with pytest.raises(ValueError, match=r"trained on pd_joint_pos actions.*--control-mode pd_joint_pos"):
         validate(EvalConfig(suite, f"lerobot:{checkpoint}", Path("unused"), explicit=frozenset({"control_mode"})))
 
 
@@ -134,6 +145,7 @@ def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulka
         "--policy.device=cpu",
         "--env.type=kitbench",
         "--env.task=LiftPegUpright-v1",
+        "--env.control_mode=pd_joint_pos",
         f"--eval.n_episodes={batch_size}",
         f"--eval.batch_size={batch_size}",
         f"--eval.use_async_envs={str(use_async).lower()}",
@@ -143,3 +155,43 @@ def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulka
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == batch_size
+
+
+def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(checkpoint, tmp_path, needs_vulkan):
+    """The same checkpoint on the same seeds: lerobot-eval (4 async envs through the plugin) and kitbench eval
+    agree episode by episode on success and on the summed reward, so scores from either tool compare."""
+    first = 1_000_000
+    lerobot = [
+        str(BIN / "lerobot-eval"),
+        f"--policy.path={checkpoint}",
+        "--policy.device=cpu",
+        "--env.type=kitbench",
+        "--env.task=LiftPegUpright-v1",
+        "--env.control_mode=pd_joint_pos",
+        "--eval.n_episodes=4",
+        "--eval.batch_size=4",
+        "--eval.use_async_envs=true",
+        f"--seed={first}",
+        f"--output_dir={tmp_path / 'lerobot'}",
+    ]
+    run = subprocess.run(lerobot, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    info = json.loads((tmp_path / "lerobot" / "eval_info.json").read_text())
+    theirs = {e["seed"]: e for group in info["per_task"] for e in group["metrics"]["per_episode"]}
+    scored = [
+        str(BIN / "kitbench"),
+        "eval",
+        "--task=LiftPegUpright-v1",
+        f"--policy=lerobot:{checkpoint}",
+        "--episodes=4",
+        f"--seed={first}",
+        "--videos=0",
+        f"--out={tmp_path / 'kitbench'}",
+    ]
+    run = subprocess.run(scored, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    ours = {e["seed"]: e for e in json.loads((tmp_path / "kitbench" / "report.json").read_text())["per_episode"]}
+    assert sorted(theirs) == sorted(ours) == list(range(first, first + 4))
+    for seed, episode in ours.items():
+        assert theirs[seed]["success"] == episode["success"]
+        assert theirs[seed]["sum_reward"] == pytest.approx(episode["episode_return"], rel=1e-4)

@@ -4,6 +4,7 @@ offline, and points at the dataset a committed recipe writes, with matching obse
 from __future__ import annotations
 
 import json
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -40,3 +41,69 @@ def test_config_parses_with_lerobot_and_matches_its_recipe(path):
     assert cfg.env.task == recipe.task and cfg.env.control_mode == recipe.control_mode
     assert cfg.dataset.repo_id == recipe.dataset_repo_id
     assert (cfg.env.obs_type == "pixels_state") == (recipe.obs_mode != "state")
+
+
+LENGTH_SEEDS = 10  # episodes per recipe whose lengths the chunk check reads
+
+
+@cache
+def _shortest_demo(task: str, control_mode: str, settle_steps: int, action_noise: float, first_seed: int) -> int:
+    """The shortest successful episode among a recipe's first seeds, recorded as state: cameras do not change
+    the physics, so an image recipe's episodes are as long."""
+    from kitbench.policies.expert import ExpertPolicy
+    from kitbench.recording.rollout import run_episode
+    from kitbench.registration import make_env
+
+    env = make_env(task, obs_mode="state", control_mode=control_mode)
+    lengths = []
+    for seed in range(first_seed, first_seed + LENGTH_SEEDS):
+        episode = run_episode(env, ExpertPolicy(), seed, settle_steps=settle_steps, action_noise=action_noise)
+        if episode.success:
+            lengths.append(episode.length)
+    env.close()
+    assert lengths, f"the {task} expert succeeded in none of seeds {first_seed}..{first_seed + LENGTH_SEEDS - 1}"
+    return min(lengths)
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
+def test_config_fits_the_data_its_recipe_writes(path):
+    """Action chunks no longer than the demonstrations (a chunk past an episode's end is padding the policy
+    learns nothing from, and lerobot-doctor flags it), and the env features the policy is evaluated on are the
+    dataset's own."""
+    import draccus
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.policies import ACTConfig, DiffusionConfig  # noqa: F401  (policy choices)
+
+    import lerobot_env_kitbench  # noqa: F401
+    from kitbench.envs.features import observation_features
+    from kitbench.recording.features import dataset_features
+    from kitbench.registration import make_env
+
+    cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=[])
+    recipe = RECIPES[cfg.dataset.root]
+    shortest = _shortest_demo(recipe.task, recipe.control_mode, recipe.settle_steps, recipe.action_noise, recipe.seed)
+    policy = cfg.policy
+    span = policy.chunk_size if policy.type == "act" else policy.horizon
+    assert span <= shortest, f"{path.name}: {span} action steps per prediction, shortest demo {shortest}"
+    assert policy.n_action_steps <= span
+
+    state_env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode)
+    try:
+        recorded = dataset_features(state_env)
+        if recipe.obs_mode != "state":
+            recorded.update(observation_features(state_env, images=True))
+    finally:
+        state_env.close()
+    for key, name in cfg.env.features_map.items():
+        assert name in recorded, f"{path.name}: env feature {key} ({name}) is not in the dataset"
+        assert tuple(cfg.env.features[key].shape) == tuple(recorded[name]["shape"]), name
+    wanted = {n for n in recorded if n.startswith("observation.")}
+    assert wanted == set(cfg.env.features_map.values()) - {"action"}
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
+def test_state_configs_train_on_a_cpu_and_image_configs_say_they_want_a_gpu(path):
+    raw = json.loads(path.read_text())
+    assert raw["policy"]["device"] == ("cpu" if path.stem.endswith("_state") else "cuda")
+    assert raw["eval"]["batch_size"] > 1 and raw["eval"]["use_async_envs"] is True
+    assert 0 < raw["env_eval_freq"] <= raw["steps"]

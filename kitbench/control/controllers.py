@@ -1,20 +1,28 @@
-"""The five control modes. Each maps an action (last entry: gripper, -1 open .. 1 closed) to arm joint targets.
+"""The control modes. Each maps an action (last entry: gripper, -1 open .. 1 closed) to arm joint targets.
 
 End-effector modes solve IK with mink on the MuJoCo twin of the simulated Panda. Poses are in the robot's
 base frame (x forward, z up, origin at the base); rotations are axis-angle vectors.
 
-| mode                | arm action                          | bounds             |
-|---------------------|-------------------------------------|--------------------|
-| pd_joint_delta_pos  | joint position deltas               | +-0.1 rad          |
-| pd_joint_pos        | absolute joint targets              | joint limits       |
-| pd_ee_delta_pos     | TCP translation                     | +-0.1 m            |
-| pd_ee_delta_pose    | TCP translation, rotation           | +-0.1 m, +-0.1 rad |
-| pd_ee_pose          | absolute TCP position, rotation     | +-1 m, +-pi rad    |
+| mode                      | arm action: from the measured state / the previous target | bounds             |
+|---------------------------|------------------------------------------------------------|--------------------|
+| pd_joint_delta_pos        | joint position deltas from the measured joints             | +-0.1 rad          |
+| pd_joint_target_delta_pos | joint position deltas from the previous joint target       | +-0.1 rad          |
+| pd_joint_pos              | absolute joint targets                                     | joint limits       |
+| pd_ee_delta_pos           | TCP translation from the measured TCP                      | +-0.1 m            |
+| pd_ee_target_delta_pos    | TCP translation from the previous TCP target               | +-0.1 m            |
+| pd_ee_delta_pose          | TCP translation, rotation from the measured TCP            | +-0.1 m, +-0.1 rad |
+| pd_ee_target_delta_pose   | TCP translation, rotation from the previous TCP target     | +-0.1 m, +-0.1 rad |
+| pd_ee_pose                | absolute TCP position, rotation                            | +-1 m, +-pi rad    |
 
-Deltas accumulate on the previous target, as a real arm's impedance controller integrates commands: ten
-+1 cm steps move the TCP 10 cm once the arm settles, however the PD drives lag. So that a blocked arm does not
-wind up, a target never leads the measured state by more than `MAX_JOINT_LEAD` / `MAX_POS_LEAD` /
-`MAX_ROT_LEAD`. Rotation deltas turn the TCP about axes parallel to the base frame's, centred at the TCP.
+The names and semantics are ManiSkill's. A delta mode applies the action to the measured state, which the
+observation holds, so the same observation and action always mean the same target: a policy can learn it. A
+`*_target_delta_*` mode accumulates on the previous target, as a real arm's impedance controller integrates
+commands (ten +1 cm steps move the TCP 10 cm once the arm settles, however the PD drives lag); the target is
+state the observation does not show. So that a blocked arm does not wind up, an accumulated target never leads
+the measured state by more than `MAX_JOINT_LEAD` / `MAX_POS_LEAD` / `MAX_ROT_LEAD`. Rotation deltas turn the
+TCP about axes parallel to the base frame's, centred at the TCP. `pd_ee_delta_pos` keeps the orientation last
+commanded: its action has no rotation, and a target built on the measured orientation would keep whatever a
+contact or the drives' tracking error did to it instead of restoring it.
 """
 
 from __future__ import annotations
@@ -31,7 +39,20 @@ from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never need
     from kitbench.control.kinematics import PandaKinematics
 
-CONTROL_MODES = ("pd_joint_delta_pos", "pd_joint_pos", "pd_ee_delta_pos", "pd_ee_delta_pose", "pd_ee_pose")
+CONTROL_MODES = (
+    "pd_joint_delta_pos",
+    "pd_joint_target_delta_pos",
+    "pd_joint_pos",
+    "pd_ee_delta_pos",
+    "pd_ee_target_delta_pos",
+    "pd_ee_delta_pose",
+    "pd_ee_target_delta_pose",
+    "pd_ee_pose",
+)
+# the modes whose action changes the measured state / the previous target
+MEASURED_DELTA_MODES = ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
+TARGET_DELTA_MODES = ("pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose")
+JOINT_DELTA_MODES = ("pd_joint_delta_pos", "pd_joint_target_delta_pos")
 MAX_JOINT_LEAD = 0.2  # rad
 MAX_POS_LEAD = 0.1  # m
 MAX_ROT_LEAD = 0.4  # rad
@@ -99,11 +120,23 @@ class Controller:
 
 
 class JointDeltaPos(Controller):
+    """Joint deltas from the measured joint positions."""
+
     mode = "pd_joint_delta_pos"
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
         self.action_space = _box(np.full(7, -0.1), np.full(7, 0.1))
+
+    def arm_targets(self, arm_action, arm_qpos):
+        self.joint_target = self._clip_to_limits(arm_qpos + arm_action)
+        return self.joint_target
+
+
+class JointTargetDeltaPos(JointDeltaPos):
+    """Joint deltas accumulated on the previous joint target (at most `MAX_JOINT_LEAD` ahead of the joints)."""
+
+    mode = "pd_joint_target_delta_pos"
 
     def arm_targets(self, arm_action, arm_qpos):
         target = np.clip(self.joint_target + arm_action, arm_qpos - MAX_JOINT_LEAD, arm_qpos + MAX_JOINT_LEAD)
@@ -124,16 +157,22 @@ class JointPos(Controller):
 
 
 class _EEDelta(Controller):
-    """Shared by the delta end-effector modes: accumulate on the TCP target, bounded lead over the TCP."""
+    """Shared by the delta end-effector modes: the delta applies to the measured TCP pose, or (`accumulate`) to
+    the previous TCP target with a bounded lead over the measured TCP."""
+
+    accumulate = False
 
     def _delta_target(self, translation, rotation, arm_qpos) -> np.ndarray:
         measured = self.kinematics.tcp_pose(arm_qpos)
-        target = measured.copy() if self.tcp_target is None else self.tcp_target.copy()
+        previous = self.tcp_target
+        target = (previous if self.accumulate and previous is not None else measured).copy()
         target[:3, 3] = np.clip(
             target[:3, 3] + translation, measured[:3, 3] - MAX_POS_LEAD, measured[:3, 3] + MAX_POS_LEAD
         )
         if rotation is not None:
             target[:3, :3] = _limit_rotation_lead(axis_angle_to_matrix(rotation) @ target[:3, :3], measured[:3, :3])
+        elif previous is not None:  # translation only: the orientation last commanded (module docstring)
+            target[:3, :3] = previous[:3, :3]
         return self._solve(target)
 
 
@@ -148,6 +187,11 @@ class EEDeltaPos(_EEDelta):
         return self._delta_target(arm_action[:3], None, arm_qpos)
 
 
+class EETargetDeltaPos(EEDeltaPos):
+    mode = "pd_ee_target_delta_pos"
+    accumulate = True
+
+
 class EEDeltaPose(_EEDelta):
     mode = "pd_ee_delta_pose"
 
@@ -157,6 +201,11 @@ class EEDeltaPose(_EEDelta):
 
     def arm_targets(self, arm_action, arm_qpos):
         return self._delta_target(arm_action[:3], arm_action[3:6], arm_qpos)
+
+
+class EETargetDeltaPose(EEDeltaPose):
+    mode = "pd_ee_target_delta_pose"
+    accumulate = True
 
 
 class EEPose(Controller):
@@ -178,7 +227,19 @@ def pose_to_ee_action(tcp_pose: np.ndarray) -> np.ndarray:
     return np.concatenate([tcp_pose[:3, 3], matrix_to_axis_angle(tcp_pose[:3, :3])])
 
 
-_CONTROLLERS = {c.mode: c for c in (JointDeltaPos, JointPos, EEDeltaPos, EEDeltaPose, EEPose)}
+_CONTROLLERS = {
+    c.mode: c
+    for c in (
+        JointDeltaPos,
+        JointTargetDeltaPos,
+        JointPos,
+        EEDeltaPos,
+        EETargetDeltaPos,
+        EEDeltaPose,
+        EETargetDeltaPose,
+        EEPose,
+    )
+}
 
 
 def make_controller(mode: str, arm_limits: np.ndarray, kinematics_factory: Callable[[], PandaKinematics]) -> Controller:

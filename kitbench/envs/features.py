@@ -14,9 +14,12 @@ from kitbench.robots.panda import ARM_JOINTS
 
 ACTION_NAMES = {
     "pd_joint_delta_pos": [f"delta_{j}" for j in ARM_JOINTS],
+    "pd_joint_target_delta_pos": [f"delta_{j}" for j in ARM_JOINTS],
     "pd_joint_pos": list(ARM_JOINTS),
     "pd_ee_delta_pos": ["dx", "dy", "dz"],
+    "pd_ee_target_delta_pos": ["dx", "dy", "dz"],
     "pd_ee_delta_pose": ["dx", "dy", "dz", "drx", "dry", "drz"],
+    "pd_ee_target_delta_pose": ["dx", "dy", "dz", "drx", "dry", "drz"],
     "pd_ee_pose": ["x", "y", "z", "rx", "ry", "rz"],
 }
 STATE = "observation.state"

@@ -51,10 +51,12 @@ def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite
     changes = {}
     control = needs.get("control_mode")
     if control is not None and control != suite.control_mode:
-        if "control_mode" in explicit or suite.source is not None:
-            where = "the command line" if "control_mode" in explicit else f"suite {suite.source}"
+        # A suite's control mode is for policies that act in any mode (expert, baselines): success does not depend
+        # on it, and a trained policy's actions mean something in its own mode only. Asked for on the command
+        # line, another mode is a mistake to point out.
+        if "control_mode" in explicit:
             raise KitbenchError(
-                f"policy {policy.name} was trained on {control} actions but {where} asks for "
+                f"policy {policy.name} was trained on {control} actions but the command line asks for "
                 f"{suite.control_mode}; evaluate it with --control-mode {control}"
             )
         changes["control_mode"] = control

@@ -1,6 +1,7 @@
 """Express a joint-position target in any control mode, so a planner written for one mode drives them all.
 
-The conversion reads the controller's own targets, so the action reproduces the planner's intent exactly
+A delta is taken from what the mode applies it to: the measured joints or TCP (`pd_*_delta_*`), or the
+controller's previous target (`pd_*_target_delta_*`). The action then reproduces the planner's target exactly
 whenever it fits in the mode's action box (delta modes clip larger steps; the closed-loop planner then adapts).
 """
 
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitbench.control.controllers import pose_to_ee_action
+from kitbench.control.controllers import JOINT_DELTA_MODES, TARGET_DELTA_MODES, pose_to_ee_action
 from kitbench.geometry import matrix_to_axis_angle
 
 
@@ -18,19 +19,20 @@ def joint_target_to_action(env, arm_target: np.ndarray, gripper: float) -> np.nd
     controller = u.controller
     if mode == "pd_joint_pos":
         arm = arm_target
-    elif mode == "pd_joint_delta_pos":
-        arm = arm_target - controller.joint_target
+    elif mode in JOINT_DELTA_MODES:
+        base = controller.joint_target if mode in TARGET_DELTA_MODES else u.robot.qpos()[:7]
+        arm = arm_target - base
     else:
         kin = controller.kinematics
         target = kin.tcp_pose(arm_target)
         if mode == "pd_ee_pose":
             arm = pose_to_ee_action(target)
         else:
-            previous = controller.tcp_target
+            previous = controller.tcp_target if mode in TARGET_DELTA_MODES else None
             if previous is None:
                 previous = kin.tcp_pose(u.robot.qpos()[:7])
             arm = target[:3, 3] - previous[:3, 3]
-            if mode == "pd_ee_delta_pose":
+            if mode.endswith("_pose"):
                 arm = np.concatenate([arm, matrix_to_axis_angle(target[:3, :3] @ previous[:3, :3].T)])
     action = np.append(arm, gripper).astype(np.float32)
     space = u.action_space

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
+from kitbench.recording.noise import check_noise_scale
 from kitbench.registration import canonical_task, task_entry
 from kitbench.settings import check_seed, read_settings
 
@@ -37,6 +38,10 @@ class RecordConfig:
     # Episodes attempted (stored or not) before the recording gives up and exits 3; None means 10 x episodes.
     # Only --only-success with a policy that rarely succeeds gets near it, and then it bounds the run.
     max_attempts: int | None = None
+    # Demonstrations for learning (recording/rollout.py): executed actions get seeded noise of this many units of
+    # the control mode (recording/noise.py; labels stay clean), and episodes run this many steps past success.
+    action_noise: float = 0.0
+    settle_steps: int = 0
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
@@ -52,7 +57,16 @@ class RecordConfig:
         episodes are reproducible from their seed only under the same physics and assets."""
         import kitbench
 
-        settings = ("task", "seed", "obs_mode", "control_mode", "policy", "only_success")
+        settings = (
+            "task",
+            "seed",
+            "obs_mode",
+            "control_mode",
+            "policy",
+            "only_success",
+            "action_noise",
+            "settle_steps",
+        )
         return {**{k: getattr(self, k) for k in settings}, "kitbench_version": kitbench.__version__}
 
 
@@ -85,6 +99,12 @@ def validate(config: RecordConfig) -> None:
     if not _is_count(config.workers):
         raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
     check_seed(config.seed)
+    check_noise_scale(config.action_noise)
+    if (
+        not (isinstance(config.settle_steps, int) and not isinstance(config.settle_steps, bool))
+        or config.settle_steps < 0
+    ):
+        raise KitbenchError(f"settle_steps must be an integer >= 0, got {config.settle_steps!r}")
     interval = config.commit_interval
     # nan compares false with everything: a recording asked to commit every nan seconds would never commit
     if not (isinstance(interval, int | float) and not isinstance(interval, bool) and 0 <= interval < math.inf):

@@ -7,9 +7,11 @@ from kitbench.envs.features import POSE_NAMES, action_feature, observation_featu
 
 def dataset_features(env) -> dict:
     """`observation.*` are policy inputs and `action` the policy output; the rest is bookkeeping lerobot's
-    policies ignore (`commanded_ee_pose` is the controller's TCP target, base frame, for task-space training)."""
+    policies ignore (`commanded_ee_pose` is the controller's TCP target, base frame, for task-space training;
+    `executed_action` is what the robot executed: `action` plus the noise of `--action-noise`, else equal)."""
     features = observation_features(env)
     features["action"] = action_feature(env)
+    features["executed_action"] = action_feature(env)
     features["commanded_ee_pose"] = vector(POSE_NAMES)
     features["next.reward"] = {"dtype": "float32", "shape": (1,), "names": None}
     features["next.done"] = {"dtype": "bool", "shape": (1,), "names": None}

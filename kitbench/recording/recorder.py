@@ -45,6 +45,7 @@ def _worker_init(config: RecordConfig, mcap_tmp: str | None, in_pool: bool = Fal
     _WORKER["env"] = make_recording_env(config)
     _WORKER["policy"] = make_policy(config.policy)
     _WORKER["mcap_tmp"] = mcap_tmp
+    _WORKER["options"] = {"action_noise": config.action_noise, "settle_steps": config.settle_steps}
 
 
 def _worker_episode(seed: int):
@@ -52,7 +53,7 @@ def _worker_episode(seed: int):
 
     mcap_tmp = _WORKER["mcap_tmp"]
     path = Path(mcap_tmp) / f"seed-{seed:08d}.mcap" if mcap_tmp else None
-    return run_episode(_WORKER["env"], _WORKER["policy"], seed, path), path
+    return run_episode(_WORKER["env"], _WORKER["policy"], seed, path, **_WORKER["options"]), path
 
 
 class _InProcess:

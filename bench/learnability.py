@@ -1,0 +1,614 @@
+"""Learnability of kitbench demonstrations: do policies trained with stock `lerobot-train` succeed in `kitbench eval`?
+
+    python bench/learnability.py --task LiftPegUpright-v1 --obs state --demos 50,100,200 --policy act [--steps N]
+        [--out outputs/learnability] [--control-mode M] [--action-noise X] [--settle-steps K] [--suite-episodes E]
+        [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
+
+For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
+trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above),
+scores the final checkpoint on the task's standard suite (`kitbench eval`) and prints one row per run: parameters,
+training minutes (wall clock: imports, dataset loading and model set-up count), steps/s of the training loop (dated
+by lerobot's log; the config's in-training env evaluations count), success k/n with its Wilson 95% interval, the
+task's success criteria and failure categories.
+
+Each row is appended to <out>/results.jsonl with the exact commands, the machine and the versions, and
+<out>/<task>_<obs>_success_vs_demos.png plots success against demos for every (policy, tag) found there, latest row
+per demo count: give variants (another config, action noise) their own --tag so their lines stay apart.
+
+Layout: <out>/<task>_<obs>_d<D>[_<tag>]/data (the dataset, record.log) holds what the policies share; each policy
+trains and is scored under <policy>/ (train/, train.log, eval/, eval.log). A dataset recorded by the same command
+from the same recipe with this kitbench version is reused, so a second policy on the same demos skips recording.
+
+Exit status: 2 for a bad argument (nothing written), 1 when a command fails (it and the tail of its log printed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import platform
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from importlib.metadata import version
+from pathlib import Path
+
+import kitbench
+from kitbench.control.controllers import CONTROL_MODES
+from kitbench.errors import KitbenchError
+from kitbench.evaluation.runner import REPORT_JSON
+from kitbench.evaluation.stats import wilson_interval
+from kitbench.evaluation.suite import load_suite
+from kitbench.metadata import read_recording_settings
+from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
+from kitbench.registration import canonical_task, task_entry
+from kitbench.settings import read_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent  # the venv's console scripts, whichever way the script was started
+OBS_CHOICES = ("state", "rgb")
+ENV_OBS_TYPE = {"state": "state", "rgb": "pixels_state"}  # the lerobot env config's name for each
+# the data never comes from the Hub (dataset.root is local), and a stray lookup must not stall a long run
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1"}
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+LOG_TAIL_LINES = 30
+
+
+class UsageError(Exception):
+    """A bad argument, reported before anything is written."""
+
+
+class CommandFailed(Exception):
+    def __init__(self, command: list[str], log: Path, status: int):
+        how = f"killed by signal {-status}" if status < 0 else f"exit status {status}"
+        super().__init__(f"{how}: {shlex.join(command)}")
+        self.command, self.log, self.status = command, log, status
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The checked arguments: what every run shares."""
+
+    task: str
+    snake: str
+    obs: str
+    demos: list[int]
+    policy: str
+    config: Path
+    recipe: Path
+    suite: Path
+    out: Path
+    steps: int | None
+    control_mode: str  # the recording's, which training and evaluation must use too
+    control_mode_flag: str | None
+    config_has_env: bool  # the config evaluates on a kitbench env during training, which needs the control mode
+    action_noise: float | None
+    settle_steps: int | None
+    suite_episodes: int | None
+    tag: str | None
+
+
+def task_snake(task: str) -> str:
+    """LiftPegUpright-v1 -> lift_peg_upright, the stem of the task's recipe, config and suite files."""
+    stem = re.sub(r"-v\d+$", "", task)
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", stem).lower()
+
+
+def parse_demos(text: str) -> list[int]:
+    values = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part.isdigit() or int(part) < 1:
+            raise UsageError(f"--demos {text!r}: {part!r} is not a positive integer; give e.g. --demos 50,100,200")
+        values.append(int(part))
+    return list(dict.fromkeys(values))
+
+
+def _default_path(folder: str, name: str, what: str, pattern: str) -> Path:
+    path = ROOT / folder / name
+    if not path.is_file():
+        found = sorted(p.name for p in (ROOT / folder).glob(pattern))
+        raise UsageError(f"no {what} {path}; found: {', '.join(found) or 'none'}")
+    return path
+
+
+def _check_config(config: Path, task: str, obs: str, policy: str) -> dict:
+    try:
+        data = json.loads(config.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise UsageError(f"config {config} is not readable JSON ({exc})") from None
+    env = data.get("env") or {}
+    policy_type = (data.get("policy") or {}).get("type")
+    if policy_type != policy:
+        raise UsageError(f"config {config} trains policy type {policy_type!r}, not --policy {policy}")
+    if env.get("task") not in (None, task):
+        raise UsageError(f"config {config} is for task {env['task']}, not --task {task}")
+    if env.get("obs_type") not in (None, ENV_OBS_TYPE[obs]):
+        raise UsageError(f"config {config} has env.obs_type {env['obs_type']!r}; --obs {obs} needs {ENV_OBS_TYPE[obs]}")
+    return data
+
+
+def _check_recipe(recipe: Path, task: str, obs: str) -> dict:
+    if not recipe.is_file():
+        raise UsageError(f"no recipe {recipe}")
+    try:
+        data = read_settings(recipe, "recipe", RECIPE_TABLE, RECIPE_KEYS)
+    except KitbenchError as exc:
+        raise UsageError(str(exc)) from None
+    if "task" in data and canonical_task(data["task"]) != task:
+        raise UsageError(f"recipe {recipe} records {data['task']}, not --task {task}")
+    if data.get("obs_mode", "state") != obs:
+        raise UsageError(f"recipe {recipe} records obs_mode {data.get('obs_mode')!r}, not --obs {obs}")
+    return data
+
+
+def _record_default(key: str):
+    return next(f.default for f in dataclasses.fields(RecordConfig) if f.name == key)
+
+
+def check_args(args: argparse.Namespace) -> Plan:
+    """Every check that can fail before a file is written."""
+    try:
+        task = task_entry(args.task).name
+    except KitbenchError as exc:
+        raise UsageError(f"--task: {exc}") from None
+    snake = task_snake(task)
+    if args.obs not in OBS_CHOICES:
+        raise UsageError(f"unknown --obs {args.obs!r}; valid choices: {', '.join(OBS_CHOICES)}")
+    demos = parse_demos(args.demos)
+    for flag, value in (("--policy", args.policy), ("--tag", args.tag)):
+        if value is not None and not NAME.fullmatch(value):
+            raise UsageError(f"{flag} {value!r} must be a name of letters, digits, '.', '_' or '-'")
+    for flag, value, low in (("--steps", args.steps, 1), ("--suite-episodes", args.suite_episodes, 1)):
+        if value is not None and value < low:
+            raise UsageError(f"{flag} must be a positive integer, got {value}")
+    if args.settle_steps is not None and args.settle_steps < 0:
+        raise UsageError(f"--settle-steps must be a non-negative integer, got {args.settle_steps}")
+    if args.action_noise is not None and not (math.isfinite(args.action_noise) and args.action_noise >= 0):
+        raise UsageError(f"--action-noise must be a finite number >= 0, got {args.action_noise}")
+    for flag, key, value in (
+        ("--action-noise", "action_noise", args.action_noise),
+        ("--settle-steps", "settle_steps", args.settle_steps),
+    ):
+        if value is not None and key not in RECIPE_KEYS:
+            raise UsageError(f"{flag}: this kitbench's `record` has no {key} setting (kitbench {kitbench.__version__})")
+    if args.control_mode is not None and args.control_mode not in CONTROL_MODES:
+        raise UsageError(f"unknown --control-mode {args.control_mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
+    name = f"{snake}_{args.obs}"
+    if args.config:
+        config = Path(args.config)
+        if not config.is_file():
+            raise UsageError(f"no config {config}")
+    else:
+        config = ROOT / "policies" / f"{args.policy}_{name}.json"
+        if not config.is_file():
+            valid = sorted(c.name.removesuffix(f"_{name}.json") for c in config.parent.glob(f"*_{name}.json"))
+            raise UsageError(f"unknown --policy {args.policy!r} (no {config}); valid choices: {', '.join(valid)}")
+    config_data = _check_config(config, task, args.obs, args.policy)
+    recipe = Path(args.recipe) if args.recipe else _default_path("datasets", f"{name}.toml", "recipe", "*.toml")
+    recipe_data = _check_recipe(recipe, task, args.obs)
+    env = config_data.get("env") or {}
+    recorded_mode = recipe_data.get("control_mode") or _record_default("control_mode")
+    if args.control_mode is None and env.get("control_mode", recorded_mode) != recorded_mode:
+        # a policy trained on one action space and run in another fails for no reason the table could show
+        raise UsageError(
+            f"config {config} has env.control_mode {env['control_mode']} but recipe {recipe} records "
+            f"{recorded_mode}; pass --control-mode to record, train and evaluate in one of them"
+        )
+    suite = _default_path("eval/suites", f"{snake}.toml", "suite", "*.toml")
+    try:
+        seeds = len(load_suite(suite).seeds)
+    except KitbenchError as exc:
+        raise UsageError(str(exc)) from None
+    if args.suite_episodes is not None and args.suite_episodes > seeds:
+        raise UsageError(f"--suite-episodes {args.suite_episodes}: suite {suite} has {seeds} seeds")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is a file; give a folder")
+    return Plan(
+        task=task,
+        snake=snake,
+        obs=args.obs,
+        demos=demos,
+        policy=args.policy,
+        config=config,
+        recipe=recipe,
+        suite=suite,
+        out=out,
+        steps=args.steps,
+        control_mode=args.control_mode or recorded_mode,
+        control_mode_flag=args.control_mode,
+        config_has_env=bool(env),
+        action_noise=args.action_noise,
+        settle_steps=args.settle_steps,
+        suite_episodes=args.suite_episodes,
+        tag=args.tag,
+    )
+
+
+def log_tail(log: Path, lines: int = LOG_TAIL_LINES) -> str:
+    """The last lines of a log, each progress bar's redrawn line reduced to its final state."""
+    try:
+        text = log.read_text(errors="replace")
+    except OSError:
+        return "(no log)"
+    return "\n".join(line.rsplit("\r", 1)[-1] for line in text.splitlines()[-lines:])
+
+
+def run_logged(command: list[str], log: Path) -> float:
+    """Run a command with its output in `log`; the wall-clock seconds it took, or CommandFailed."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    start = time.monotonic()
+    with log.open("w") as f:
+        f.write(f"$ {shlex.join(command)}\n")
+        f.flush()
+        status = subprocess.run(command, stdout=f, stderr=subprocess.STDOUT, env=ENV, check=False).returncode
+    if status != 0:
+        raise CommandFailed(command, log, status)
+    return time.monotonic() - start
+
+
+def record_command(plan: Plan, demos: int, data: Path) -> list[str]:
+    command = [str(BIN / "kitbench"), "record", str(plan.recipe), "--episodes", str(demos), "--out", str(data)]
+    command.append("--overwrite")
+    if plan.control_mode_flag is not None:
+        command += ["--control-mode", plan.control_mode_flag]
+    if plan.action_noise is not None:
+        command += ["--action-noise", str(plan.action_noise)]
+    if plan.settle_steps is not None:
+        command += ["--settle-steps", str(plan.settle_steps)]
+    return command
+
+
+def _recorded_episodes(data: Path) -> int | None:
+    try:
+        return json.loads((data / "meta" / "info.json").read_text()).get("total_episodes")
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bool]:
+    """Record the run's demonstrations, or reuse the dataset already there if the same command recorded it from
+    the same recipe with this kitbench version (the recording settings alone omit the episode count and any
+    recipe key kitbench does not yet store). Returns the recording command and whether the data was reused."""
+    data = run_dir / "data"
+    command = record_command(plan, demos, data)
+    request = {
+        "command": command,
+        "recipe_sha256": hashlib.sha256(plan.recipe.read_bytes()).hexdigest(),
+        "kitbench_version": kitbench.__version__,
+    }
+    stamp = run_dir / "record_request.json"
+    recorded = read_recording_settings(data)
+    if (
+        recorded is not None
+        and stamp.is_file()
+        and json.loads(stamp.read_text()) == {**request, "recording": recorded}
+        and recorded.get("kitbench_version") == kitbench.__version__
+        and recorded.get("control_mode") == plan.control_mode
+        and _recorded_episodes(data) == demos
+    ):
+        return command, True
+    stamp.unlink(missing_ok=True)
+    run_logged(command, run_dir / "record.log")
+    recorded = read_recording_settings(data)
+    if recorded is None:
+        raise CommandFailed(command, run_dir / "record.log", 0)  # exited 0 yet left no kitbench dataset
+    stamp.write_text(json.dumps({**request, "recording": recorded}, indent=1) + "\n")
+    return command, False
+
+
+def train_command(plan: Plan, data: Path, train_dir: Path) -> list[str]:
+    command = [
+        str(BIN / "lerobot-train"),
+        f"--config_path={plan.config}",
+        f"--dataset.root={data}",
+        f"--output_dir={train_dir}",
+    ]
+    if plan.steps is not None:
+        command.append(f"--steps={plan.steps}")
+    if plan.control_mode_flag is not None and plan.config_has_env:
+        command.append(f"--env.control_mode={plan.control_mode_flag}")
+    return command
+
+
+def count_parameters(log: Path, checkpoint: Path) -> tuple[int, str]:
+    """The policy's parameter count: lerobot-train's own log line, else the checkpoint's tensors."""
+    found = re.findall(r"num_total_params=(\d+)", log.read_text(errors="replace"))
+    if found:
+        return int(found[-1]), "train log"
+    from safetensors import safe_open
+
+    with safe_open(checkpoint / "model.safetensors", framework="pt") as f:
+        names = f.keys()  # a safe_open handle has keys() but cannot be iterated itself
+        return sum(math.prod(f.get_slice(k).get_shape()) for k in names), "model.safetensors"
+
+
+def loop_seconds(log: Path) -> float | None:
+    """Seconds of lerobot-train's training loop, from its log's timestamps (whole seconds): from the parameter
+    count, its last line before the loop, to "End of training". None if either line is missing."""
+    stamps = {}
+    for line in log.read_text(errors="replace").splitlines():
+        match = re.match(r"\w+ (\d{4}-\d\d-\d\d \d\d:\d\d:\d\d) .*(num_total_params=|End of training)", line)
+        if match:
+            stamps[match[2]] = datetime.strptime(match[1], "%Y-%m-%d %H:%M:%S")
+    if len(stamps) < 2:
+        return None
+    return (stamps["End of training"] - stamps["num_total_params="]).total_seconds()
+
+
+def train(plan: Plan, data: Path, policy_dir: Path) -> dict:
+    train_dir = policy_dir / "train"
+    if train_dir.exists():  # lerobot-train refuses an existing output folder
+        shutil.rmtree(train_dir)
+    command = train_command(plan, data, train_dir)
+    log = policy_dir / "train.log"
+    seconds = run_logged(command, log)
+    checkpoint = train_dir / "checkpoints" / "last" / "pretrained_model"
+    train_config = json.loads((checkpoint / "train_config.json").read_text())
+    params, source = count_parameters(log, checkpoint)
+    return {
+        "command": command,
+        "dir": train_dir,
+        "seconds": seconds,
+        "steps": train_config["steps"],
+        "batch_size": train_config.get("batch_size"),
+        "device": (train_config.get("policy") or {}).get("device"),
+        "loop_seconds": loop_seconds(log),
+        "params": params,
+        "params_source": source,
+    }
+
+
+def evaluate(plan: Plan, train_dir: Path, policy_dir: Path) -> tuple[list[str], dict]:
+    eval_dir = policy_dir / "eval"
+    command = [
+        str(BIN / "kitbench"),
+        "eval",
+        "--suite",
+        str(plan.suite),
+        "--policy",
+        f"lerobot:{train_dir}",
+        "--out",
+        str(eval_dir),
+        "--overwrite",
+        "--videos",
+        "0",
+        "--obs-mode",
+        plan.obs,
+        # the suite's seeds, in the control mode the policy learned (the suite file names the recorder's default)
+        "--control-mode",
+        plan.control_mode,
+    ]
+    if plan.suite_episodes is not None:
+        command += ["--episodes", str(plan.suite_episodes)]
+    run_logged(command, policy_dir / "eval.log")
+    return command, json.loads((eval_dir / REPORT_JSON).read_text())
+
+
+def machine() -> dict:
+    return {
+        "cpu_count": os.cpu_count(),
+        "processor": platform.processor(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+    }
+
+
+def now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def run_name(plan: Plan, demos: int) -> str:
+    return f"{plan.snake}_{plan.obs}_d{demos}" + (f"_{plan.tag}" if plan.tag else "")
+
+
+def one_run(plan: Plan, demos: int) -> dict:
+    started = now()
+    name = run_name(plan, demos)
+    run_dir = plan.out / name
+    policy_dir = run_dir / plan.policy
+    data = run_dir / "data"
+    print(f"[{name}] {demos} demonstrations -> {data}", flush=True)
+    record, reused = ensure_dataset(plan, run_dir, demos)
+    if reused:
+        print(f"[{name}]   reusing the dataset recorded by the same command", flush=True)
+    print(f"[{name}] training {plan.policy} ({plan.config}); log {policy_dir / 'train.log'}", flush=True)
+    trained = train(plan, data, policy_dir)
+    print(f"[{name}]   {trained['steps']} steps in {trained['seconds'] / 60:.1f} min", flush=True)
+    print(f"[{name}] evaluating on {plan.suite}; log {policy_dir / 'eval.log'}", flush=True)
+    eval_cmd, report = evaluate(plan, trained["dir"], policy_dir)
+    k, n = report["success"]["count"], report["episodes"]
+    lo, hi = wilson_interval(k, n)
+    recorded = read_recording_settings(data) or {}  # what the recipe and the flags came to
+    return {
+        "task": plan.task,
+        "obs": plan.obs,
+        "policy": plan.policy,
+        "tag": plan.tag,
+        "run": name,
+        "demos": demos,
+        "params": trained["params"],
+        "params_source": trained["params_source"],
+        "train_steps": trained["steps"],
+        "batch_size": trained["batch_size"],
+        "train_device": trained["device"],
+        "train_seconds": trained["seconds"],
+        "train_loop_seconds": trained["loop_seconds"],
+        # the loop's rate where the log dates it: at a few steps start-up (imports, dataset, dataloader workers)
+        # would dominate the wall clock
+        "steps_per_s": trained["steps"] / (trained["loop_seconds"] or trained["seconds"]),
+        "success": {"count": k, "episodes": n, "rate": k / n if n else 0.0, "ci95": [lo, hi]},
+        "criteria": {c: r["rate"] for c, r in report["criteria"].items()},
+        "failure_categories": report["failure_categories"],
+        "record": {
+            "recipe": str(plan.recipe),
+            "control_mode": plan.control_mode,
+            "action_noise": recorded.get("action_noise", plan.action_noise),
+            "settle_steps": recorded.get("settle_steps", plan.settle_steps),
+            "reused": reused,
+        },
+        "config": str(plan.config),
+        "suite": str(plan.suite),
+        "commands": {
+            "record": shlex.join(record),
+            "train": shlex.join(trained["command"]),
+            "eval": shlex.join(eval_cmd),
+        },
+        "paths": {"data": str(data), "train": str(trained["dir"]), "report": str(policy_dir / "eval" / REPORT_JSON)},
+        "machine": machine(),
+        "kitbench_version": kitbench.__version__,
+        "lerobot_version": version("lerobot"),
+        "started": started,
+        "finished": now(),
+    }
+
+
+def table(rows: list[dict]) -> str:
+    """The rows as plain aligned text, one line per run."""
+    criteria = list(dict.fromkeys(c for r in rows for c in r["criteria"]))
+    header = ["run", "demos", "policy", "params", "steps", "train min", "steps/s", "success", "95% CI", *criteria]
+    header.append("failures")
+    lines = []
+    for r in rows:
+        s = r["success"]
+        failures = ", ".join(f"{c} {n}" for c, n in r["failure_categories"].items() if n) or "–"
+        lines.append(
+            [
+                r["run"],
+                str(r["demos"]),
+                r["policy"],
+                f"{r['params'] / 1e6:.2f}M",
+                str(r["train_steps"]),
+                f"{r['train_seconds'] / 60:.1f}",
+                f"{r['steps_per_s']:.2f}",
+                f"{s['count']}/{s['episodes']} {s['rate']:.0%}",
+                f"{s['ci95'][0]:.0%}–{s['ci95'][1]:.0%}",
+                *(f"{r['criteria'][c]:.0%}" if c in r["criteria"] else "–" for c in criteria),
+                failures,
+            ]
+        )
+    widths = [max(len(row[i]) for row in [header, *lines]) for i in range(len(header))]
+    left = {0, 2, len(header) - 1}  # names read left-aligned, numbers right-aligned
+    return "\n".join(
+        "  ".join(
+            cell.ljust(w) if i in left else cell.rjust(w) for i, (cell, w) in enumerate(zip(row, widths, strict=True))
+        ).rstrip()
+        for row in [header, *lines]
+    )
+
+
+def read_results(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def plot(results: list[dict], task: str, obs: str, path: Path) -> None:
+    """Success rate against demos with Wilson 95% error bars, one line per (policy, tag); the latest row wins
+    where a demo count was run more than once."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines: dict[tuple[str, str | None], dict[int, dict]] = {}
+    for r in results:
+        if r["task"] == task and r["obs"] == obs:
+            lines.setdefault((r["policy"], r.get("tag")), {})[r["demos"]] = r
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    demos_seen: set[int] = set()
+    for (policy, tag), by_demos in sorted(lines.items(), key=lambda kv: (kv[0][0], kv[0][1] or "")):
+        xs = sorted(by_demos)
+        demos_seen.update(xs)
+        rates = [by_demos[d]["success"]["rate"] for d in xs]
+        lo = [rate - by_demos[d]["success"]["ci95"][0] for d, rate in zip(xs, rates, strict=True)]
+        hi = [by_demos[d]["success"]["ci95"][1] - rate for d, rate in zip(xs, rates, strict=True)]
+        label = policy + (f" [{tag}]" if tag else "")
+        ax.errorbar(xs, rates, yerr=[lo, hi], marker="o", capsize=4, label=label)
+    ax.set_xscale("log", base=2)  # demo counts are usually doubled from run to run
+    ax.set_xticks(sorted(demos_seen), [str(d) for d in sorted(demos_seen)])
+    ax.minorticks_off()
+    ax.set_ylim(-0.02, 1.02)
+    ax.yaxis.set_major_formatter(matplotlib.ticker.PercentFormatter(1.0))
+    ax.set_xlabel("demonstrations")
+    ax.set_ylabel("success rate (95% Wilson CI)")
+    ax.set_title(f"{task} ({obs}): success vs demonstrations")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def publish(plan: Plan, row: dict) -> Path:
+    """Append the run to results.jsonl and redraw the plot from everything recorded there."""
+    results = plan.out / "results.jsonl"
+    with results.open("a") as f:
+        f.write(json.dumps(row) + "\n")
+    png = plan.out / f"{plan.snake}_{plan.obs}_success_vs_demos.png"
+    plot(read_results(results), plan.task, plan.obs, png)
+    return png
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", required=True, help="e.g. LiftPegUpright-v1 or AssemblingKits-v1")
+    parser.add_argument("--obs", default="state", help="state (default) or rgb")
+    parser.add_argument("--demos", required=True, help="comma-separated demo counts, one run each, e.g. 50,100,200")
+    parser.add_argument("--policy", default="act", help="policy type; picks policies/<policy>_<task>_<obs>.json")
+    parser.add_argument("--steps", type=int, help="training steps (default: the config's)")
+    parser.add_argument("--out", default="outputs/learnability", help="output folder (default outputs/learnability)")
+    parser.add_argument("--control-mode", dest="control_mode", help="action space to record, train and evaluate in")
+    parser.add_argument("--action-noise", dest="action_noise", type=float, help="passed to kitbench record")
+    parser.add_argument("--settle-steps", dest="settle_steps", type=int, help="passed to kitbench record")
+    parser.add_argument(
+        "--suite-episodes", dest="suite_episodes", type=int, help="score on the suite's first E seeds (default all)"
+    )
+    parser.add_argument("--tag", help="names a variant: run folders, results rows and plot lines carry it")
+    parser.add_argument("--config", help="lerobot-train config (default policies/<policy>_<task>_<obs>.json)")
+    parser.add_argument("--recipe", help="kitbench record recipe (default datasets/<task>_<obs>.toml)")
+    return parser
+
+
+def main() -> int:
+    args = build_parser().parse_args()
+    try:
+        plan = check_args(args)
+    except UsageError as exc:
+        print(f"learnability: error: {exc}", file=sys.stderr)
+        return 2
+    plan.out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    png = None
+    try:
+        for demos in plan.demos:
+            row = one_run(plan, demos)
+            rows.append(row)
+            png = publish(plan, row)
+            s = row["success"]
+            print(f"[{row['run']}] success {s['count']}/{s['episodes']} ({s['rate']:.0%})", flush=True)
+    except CommandFailed as exc:
+        if rows:
+            print(table(rows))
+        print(f"learnability: error: command failed with {exc}", file=sys.stderr)
+        print(f"--- last lines of {exc.log} ---\n{log_tail(exc.log)}", file=sys.stderr)
+        return 1
+    print()
+    print(f"{plan.task} · {plan.obs} · {plan.policy}" + (f" · {plan.tag}" if plan.tag else ""))
+    print(table(rows))
+    print(f"results: {plan.out / 'results.jsonl'}; plot: {png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,61 @@
+"""Action noise for demonstrations that teach recovery (DART, Laskey et al. 2017).
+
+The robot executes the policy's action plus seeded Gaussian noise; the dataset keeps the policy's own action as
+the label. The expert is closed loop (each action is planned from the simulated state, and a phase is re-planned
+from wherever the previous one ended), so the labels show how to get back on track from states a noise-free
+expert never visits: the states a learned policy drifts into.
+
+`scale` is a multiple of the control mode's noise unit (`NOISE_UNITS`), so one setting means a comparable
+disturbance in every mode: ~0.02 rad per arm joint. The gripper gets no noise: flipping it is not a small
+deviation to recover from but a different action.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from kitbench.errors import KitbenchError
+
+JOINT_UNIT = 0.02  # rad per joint: one step of it moves the TCP ~1 cm at the Panda's reach
+POSITION_UNIT = 0.01  # m, about what JOINT_UNIT does to the TCP
+ROTATION_UNIT = 0.02  # rad
+NOISE_UNITS = {
+    "pd_joint_delta_pos": [JOINT_UNIT] * 7,
+    "pd_joint_target_delta_pos": [JOINT_UNIT] * 7,
+    "pd_joint_pos": [JOINT_UNIT] * 7,
+    "pd_ee_delta_pos": [POSITION_UNIT] * 3,
+    "pd_ee_target_delta_pos": [POSITION_UNIT] * 3,
+    "pd_ee_delta_pose": [POSITION_UNIT] * 3 + [ROTATION_UNIT] * 3,
+    "pd_ee_target_delta_pose": [POSITION_UNIT] * 3 + [ROTATION_UNIT] * 3,
+    "pd_ee_pose": [POSITION_UNIT] * 3 + [ROTATION_UNIT] * 3,
+}
+_STREAM = 0xDA27  # keeps the noise stream apart from the env's own use of the seed
+
+
+def check_noise_scale(scale) -> None:
+    if not (isinstance(scale, int | float) and not isinstance(scale, bool) and 0 <= scale < math.inf):
+        raise KitbenchError(f"action_noise must be a finite number >= 0 (0: no noise), got {scale!r}")
+
+
+class ActionNoise:
+    """Per-episode noise for one control mode: `perturb(action)` returns the action to execute."""
+
+    def __init__(self, control_mode: str, scale: float, seed: int, low: np.ndarray, high: np.ndarray):
+        check_noise_scale(scale)
+        self.std = scale * np.append(np.asarray(NOISE_UNITS[control_mode], dtype=np.float64), 0.0)
+        self.low, self.high = low, high
+        self.rng = np.random.default_rng([seed, _STREAM])
+
+    @classmethod
+    def for_env(cls, env, scale: float, seed: int) -> ActionNoise:
+        u = env.unwrapped
+        return cls(u.control_mode, scale, seed, u.action_space.low, u.action_space.high)
+
+    def perturb(self, action: np.ndarray) -> np.ndarray:
+        noisy = action + self.rng.standard_normal(action.shape) * self.std
+        return np.clip(noisy, self.low, self.high).astype(np.float32)
+
+
+__all__ = ["NOISE_UNITS", "ActionNoise", "check_noise_scale"]
