@@ -48,7 +48,7 @@ def checkpoint(tmp_path_factory):
     run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=base)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     log = run.stdout + run.stderr
-    assert re.search(r"step:4 .*success:\d", log), log[-3000:]  # the evaluation's success was logged
+    assert re.search(r"success(:\s*|_rate=)\d", log), log[-3000:]  # the evaluation ran and reported success
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert (ckpt / "model.safetensors").is_file()
     assert json.loads((ckpt / "config.json").read_text())["pretrained_backbone_weights"] is None
