@@ -135,10 +135,9 @@ def test_mismatched_policy_lists_expected_and_provided(checkpoint):
         run_episode(gym.make("kitbench/AssemblingKits-v1"), policy, seed=0)
 
 
-@pytest.mark.parametrize("batch_size,use_async", [(1, False), (2, True)], ids=["sync", "async"])
-def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan, batch_size, use_async):
-    """Async vector-env workers unpickle the env config: its class must be importable at module level, and every
-    sub-env must answer `task` and `task_description`."""
+def _lerobot_eval(checkpoint, cwd, out, batch_size, use_async, *extra) -> dict:
+    """lerobot-eval of the checkpoint on LiftPegUpright-v1 through the plugin, batch_size episodes at once;
+    returns its eval_info.json."""
     cmd = [
         str(BIN / "lerobot-eval"),
         f"--policy.path={checkpoint}",
@@ -149,11 +148,19 @@ def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulka
         f"--eval.n_episodes={batch_size}",
         f"--eval.batch_size={batch_size}",
         f"--eval.use_async_envs={str(use_async).lower()}",
-        f"--output_dir={tmp_path / 'eval'}",
+        f"--output_dir={out}",
+        *extra,
     ]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    return json.loads((Path(out) / "eval_info.json").read_text())
+
+
+@pytest.mark.parametrize("batch_size,use_async", [(1, False), (2, True)], ids=["sync", "async"])
+def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan, batch_size, use_async):
+    """Async vector-env workers unpickle the env config: its class must be importable at module level, and every
+    sub-env must answer `task` and `task_description`."""
+    info = _lerobot_eval(checkpoint, tmp_path, tmp_path / "eval", batch_size, use_async)
     assert info["overall"]["n_episodes"] == batch_size
 
 
@@ -161,22 +168,7 @@ def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(checkpoint, tmp_pa
     """The same checkpoint on the same seeds: lerobot-eval (4 async envs through the plugin) and kitbench eval
     agree episode by episode on success and on the summed reward, so scores from either tool compare."""
     first = 1_000_000
-    lerobot = [
-        str(BIN / "lerobot-eval"),
-        f"--policy.path={checkpoint}",
-        "--policy.device=cpu",
-        "--env.type=kitbench",
-        "--env.task=LiftPegUpright-v1",
-        "--env.control_mode=pd_joint_pos",
-        "--eval.n_episodes=4",
-        "--eval.batch_size=4",
-        "--eval.use_async_envs=true",
-        f"--seed={first}",
-        f"--output_dir={tmp_path / 'lerobot'}",
-    ]
-    run = subprocess.run(lerobot, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    info = json.loads((tmp_path / "lerobot" / "eval_info.json").read_text())
+    info = _lerobot_eval(checkpoint, tmp_path, tmp_path / "lerobot", 4, True, f"--seed={first}")
     theirs = {e["seed"]: e for group in info["per_task"] for e in group["metrics"]["per_episode"]}
     scored = [
         str(BIN / "kitbench"),
