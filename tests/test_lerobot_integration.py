@@ -169,7 +169,13 @@ def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(checkpoint, tmp_pa
     agree episode by episode on success and on the summed reward, so scores from either tool compare."""
     first = 1_000_000
     info = _lerobot_eval(checkpoint, tmp_path, tmp_path / "lerobot", 4, True, f"--seed={first}")
-    theirs = {e["seed"]: e for group in info["per_task"] for e in group["metrics"]["per_episode"]}
+    # eval_info.json keeps per-task lists, not the seeds; lerobot-eval seeds episode i of a batch with seed + i.
+    (task,) = info["per_task"]
+    metrics = task["metrics"]
+    theirs = {
+        first + i: {"success": success, "sum_reward": reward}
+        for i, (success, reward) in enumerate(zip(metrics["successes"], metrics["sum_rewards"], strict=True))
+    }
     scored = [
         str(BIN / "kitbench"),
         "eval",
