@@ -8,6 +8,7 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+from sapien import physx
 
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.metadata import RECORDING_FILE
@@ -86,6 +87,23 @@ def test_settling_keeps_a_seated_shape_a_success_through_the_release():
     gripper = _stack(record, "action")[:, -1]
     assert gripper[record.first_success] > 0 and gripper[-1] < 0  # closed at success, open by the end
     assert _stack(record, "next.success")[record.first_success :, 0].all()
+
+
+def test_settling_sets_the_peg_down_and_lets_go():
+    """LiftPegUpright demonstrations otherwise end with the peg held 2 mm above the table: settling records the
+    expert pressing it onto the table and opening the hand; the peg then stands by itself, its height fixed by
+    the table, and stays a success."""
+    env = gym.make(LPU, control_mode="pd_joint_pos")
+    record = run_episode(env, ExpertPolicy(), seed=4, settle_steps=10)
+    assert record.success and record.length == record.first_success + 1 + 10
+    gripper = _stack(record, "action")[:, -1]
+    assert gripper[record.first_success] > 0 and gripper[-1] < 0
+    assert _stack(record, "next.success")[record.first_success :, 0].all()
+    u = env.unwrapped
+    assert not u.robot.is_grasping(u.target_object)
+    assert abs(float(u.target_object.pose.p[2]) - 0.12) < 0.001  # resting on the table: half its length up
+    body = u.target_object.find_component_by_type(physx.PhysxRigidDynamicComponent)
+    assert np.linalg.norm(body.linear_velocity) < 0.01 and np.linalg.norm(body.angular_velocity) < 0.05
 
 
 def test_settling_stops_when_time_runs_out():

@@ -6,7 +6,8 @@ centre (no gravity torque on the grasp) and its far end swings down: the hand en
 the robot, which the arm reaches with the TCP up to base-frame x ~0.45 only, so the peg is carried back while
 it turns (the TCP ends at base-frame x = 0.4). The swing is planned around the peg's far end: it leaves the
 table as the peg tilts, travels just above it and stops 2 mm above the table with the peg vertical, held at
-the success height (no release is needed; success ends the episode).
+the success height. Success ends an episode there; an episode that runs on (`kitbench record --settle-steps`)
+sees the finish: the hand sets the peg down on the table and lets go, so the table fixes its height.
 
 Every motion is timed as fast as the Panda's joint velocity and acceleration limits allow (`ik.ArmIK.plan`).
 Measured alternatives (steps to success, 50 allowed; all variants solved every seed):
@@ -19,8 +20,8 @@ Measured alternatives (steps to success, 50 allowed; all variants solved every s
   max 42.
 
 Phases (`planner.phase`): approach and descend (one smooth motion ending in a vertical descent), grasp (close,
-check, one retry via regrasp), swing (lift, turn, carry and set down in one motion), place (hold; re-aim the
-hand if the peg slipped or turned in it), failed.
+check, one retry via regrasp), swing (lift, turn, carry and set down in one motion), place (re-aim the
+hand if the peg slipped or turned in it), set_down (onto the table), release (open), done (keep still), failed.
 """
 
 from __future__ import annotations
@@ -66,6 +67,8 @@ class PlannerConfig:
     height_tolerance: float = 0.003  # place: re-aim when the peg's centre is further than this from its goal, m
     tilt_tolerance: float = 0.04  # place: or when the peg leans more than this, rad
     max_correctable_tilt: float = 0.5  # place: give up on a peg leaning more than this in the hand, rad
+    release_press: float = 0.004  # set down: the hand goes this far below the peg's contact height, m
+    release_steps: int = 2  # release: open and wait for the fingers to leave the peg
 
 
 class LiftPegUprightPlanner(PhasePlanner):
@@ -107,6 +110,10 @@ class LiftPegUprightPlanner(PhasePlanner):
             if self.grasp_attempts < self.cfg.max_grasp_attempts:
                 return self._plan_regrasp()  # its steps run on into the next descent
             return self._fail("grasp")
+        if finished == "set_down":
+            return self._plan_release()
+        if finished in ("release", "done"):
+            return hold(self._last(), 1, gripper=OPEN, phase="done")
         if finished in ("swing", "place"):
             if not self._holding():
                 return self._fail("dropped")
@@ -220,7 +227,7 @@ class LiftPegUprightPlanner(PhasePlanner):
         height_error = PEG_HALF_LENGTH + self.cfg.set_down_clearance - peg[2, 3]
         tilt = tilt_from_vertical(axis)
         if abs(height_error) <= self.cfg.height_tolerance and tilt <= self.cfg.tilt_tolerance:
-            return hold(start, 1, phase="place")
+            return self._plan_set_down(start, peg[2, 3] - PEG_HALF_LENGTH)
         if tilt > self.cfg.max_correctable_tilt:
             return self._fail("tilted")
         rotvec = np.cross(axis, [0.0, 0.0, 1.0])
@@ -230,6 +237,18 @@ class LiftPegUprightPlanner(PhasePlanner):
         target = correction @ start.tcp  # the hand moves with the peg: same world transform
         path = self._timed(lambda s: interpolate_pose(start.tcp, target, s), start, min_steps=2)
         return steps_from(path, CLOSED, "place")
+
+    def _plan_set_down(self, start: Step, clearance: float) -> list[Step]:
+        """Lower the upright peg onto the table, the hand `release_press` past contact so that the table, not the
+        hand, fixes the peg's height (the fingers slip that far along the peg at most)."""
+        target = start.tcp.copy()
+        target[2, 3] -= clearance + self.cfg.release_press
+        path = self._timed(lambda s: interpolate_pose(start.tcp, target, s), start, min_steps=1)
+        return steps_from(path, CLOSED, "set_down")
+
+    def _plan_release(self) -> list[Step]:
+        """Open the hand and keep it still: the peg stands on the table by itself."""
+        return hold(self._last(), self.cfg.release_steps, gripper=OPEN, phase="release")
 
 
 __all__ = ["LiftPegUprightPlanner", "PlannerConfig"]
