@@ -219,8 +219,8 @@ class LiftPegUprightPlanner(PhasePlanner):
         return pose_at
 
     def _plan_place(self) -> list[Step]:
-        """Hold the peg upright at its goal height. If it has slipped or turned in the hand, move the hand by the
-        correction that would bring the peg, held as it is now, upright at the goal height."""
+        """Once the peg is upright at its goal height, set it down. If it has slipped or turned in the hand, first
+        move the hand by the correction that would bring the peg, held as it is now, upright at the goal height."""
         start = self._last()
         peg = self._object_pose()
         axis = peg[:3, 0] if peg[2, 0] >= 0 else -peg[:3, 0]
