@@ -39,16 +39,6 @@ from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never need
     from kitbench.control.kinematics import PandaKinematics
 
-CONTROL_MODES = (
-    "pd_joint_delta_pos",
-    "pd_joint_target_delta_pos",
-    "pd_joint_pos",
-    "pd_ee_delta_pos",
-    "pd_ee_target_delta_pos",
-    "pd_ee_delta_pose",
-    "pd_ee_target_delta_pose",
-    "pd_ee_pose",
-)
 # the modes whose action changes the measured state / the previous target
 MEASURED_DELTA_MODES = ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
 TARGET_DELTA_MODES = ("pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose")
@@ -240,6 +230,7 @@ _CONTROLLERS = {
         EEPose,
     )
 }
+CONTROL_MODES = tuple(_CONTROLLERS)
 
 
 def make_controller(mode: str, arm_limits: np.ndarray, kinematics_factory: Callable[[], PandaKinematics]) -> Controller:
