@@ -112,6 +112,32 @@ def test_goal_fields_seat_the_shape(env):
     assert env.evaluate()["success"]
 
 
+@pytest.mark.parametrize("shape_id", [0, 7, 11, 16])
+def test_policy_state_codes_the_shape_and_folds_its_yaw_by_symmetry(env, shape_id):
+    """LeRobot's environment state: the shape one-hot, and the shape's yaw folded by its symmetry (the same
+    for every equivalent yaw, different for a yaw that is not equivalent)."""
+    env.reset(seed=0, options={"episode_index": _episode_with_target(env, shape_id)})
+    names = env.environment_state_names()
+
+    def field(name):
+        state = env.environment_state()
+        return state[[i for i, n in enumerate(names) if n.startswith(name + ".")]]
+
+    onehot = field("shape_onehot")
+    assert onehot.sum() == 1.0 and int(np.argmax(onehot)) == shape_id
+    symmetry = SYMMETRY[shape_id]
+    folded = []
+    for yaw in (0.3, 0.3 + symmetry, 0.3 + math.radians(10)):
+        env.obj.set_pose(sapien.Pose([0.05, 0.1, 0.05], yaw_quat(yaw)))
+        folded.append(field("obj_yaw_sym"))
+    np.testing.assert_allclose(folded[0], folded[1], atol=1e-5)
+    if symmetry > 0:
+        assert np.linalg.norm(folded[0] - folded[2]) > 0.1
+    else:  # a disc or ring: every yaw is the same
+        np.testing.assert_allclose(folded[0], folded[2], atol=1e-5)
+    assert np.linalg.norm(folded[0]) == pytest.approx(1.0)
+
+
 # -- physics (drops into every default kit: tests/test_kit_physics.py) ------------------------------
 def test_seated_shape_keeps_success_for_200_steps(env):
     env.reset(seed=0, options={"episode_index": _episode_with_target(env, 10)})

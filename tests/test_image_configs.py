@@ -1,0 +1,92 @@
+"""The shipped image configs are written for a GPU; on a CPU they must still run end to end: record camera
+demonstrations with the recipe's settings, train a few steps with stock `lerobot-train` (device overridden to
+the CPU), and score the checkpoint with `kitbench eval` on camera observations."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from kitbench.recording.recorder import load_recipe, record
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+IMAGE_CONFIGS = sorted((ROOT / "policies").glob("*_rgb.json"))
+EPISODES = 2
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory):
+    """One small camera dataset per recipe the image configs read, recorded as the recipe says."""
+    base = tmp_path_factory.mktemp("rgb")
+    out = {}
+    for path in IMAGE_CONFIGS:
+        root = json.loads(path.read_text())["dataset"]["root"]
+        if root in out:
+            continue
+        data = base / Path(root).name
+        recipe = load_recipe(ROOT / "datasets" / f"{Path(root).name}.toml", episodes=EPISODES, out=data, workers=1)
+        record(dataclasses.replace(recipe, mcap=False), progress=False)
+        out[root] = data
+    return out
+
+
+@pytest.mark.parametrize("path", IMAGE_CONFIGS, ids=[p.stem for p in IMAGE_CONFIGS])
+def test_image_config_trains_on_a_cpu_and_its_checkpoint_is_scored(path, needs_vulkan, datasets, tmp_path):
+    config = json.loads(path.read_text())
+    assert config["policy"]["device"] == "cuda"
+    data = datasets[config["dataset"]["root"]]
+    out = tmp_path / "train"
+    cmd = [
+        str(BIN / "lerobot-train"),
+        f"--config_path={path}",
+        f"--dataset.root={data}",
+        f"--output_dir={out}",
+        "--policy.device=cpu",
+        "--steps=2",
+        "--batch_size=2",
+        "--num_workers=0",
+        "--save_freq=2",
+        "--env_eval_freq=0",
+        "--log_freq=1",
+    ]
+    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    checkpoint = out / "checkpoints" / "last" / "pretrained_model"
+    saved = json.loads((checkpoint / "config.json").read_text())
+    assert any(name.startswith("observation.images.") for name in saved["input_features"]), saved["input_features"]
+
+    report = tmp_path / "eval"
+    task = config["env"]["task"]
+    score = subprocess.run(
+        [
+            str(BIN / "kitbench"),
+            "eval",
+            "--task",
+            task,
+            "--policy",
+            f"lerobot:{out}",
+            "--episodes",
+            "1",
+            "--obs-mode",
+            "rgb",
+            "--control-mode",
+            config["env"]["control_mode"],
+            "--out",
+            str(report),
+        ],
+        capture_output=True,
+        text=True,
+        env=OFFLINE,
+        timeout=900,
+    )
+    assert score.returncode == 0, score.stdout[-3000:] + score.stderr[-3000:]
+    result = json.loads((report / "report.json").read_text())
+    assert result["episodes"] == 1 and result["task"] == task
