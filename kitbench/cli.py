@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import kitbench
+from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.registration import GYM_NAMESPACE, TASKS, canonical_task
 
@@ -56,6 +57,7 @@ def _record(args) -> int:
         "max_attempts": args.max_attempts,
         "action_noise": args.action_noise,
         "settle_steps": args.settle_steps,
+        "reward_mode": args.reward_mode,
     }
     try:
         if args.recipe:
@@ -190,6 +192,11 @@ def build_parser() -> argparse.ArgumentParser:
         dest="settle_steps",
         type=int,
         help="steps recorded after an episode's first success, the policy finishing the task (default 0)",
+    )
+    rec.add_argument(
+        "--reward-mode",
+        dest="reward_mode",
+        help=f"reward stored in next.reward: {', '.join(REWARD_MODES)} (default dense)",
     )
     rec.set_defaults(func=_record)
     ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")

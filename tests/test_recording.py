@@ -261,6 +261,22 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
         ReplayPolicy(str(out))
 
 
+def test_reward_mode_chooses_the_stored_reward_and_is_recorded(tmp_path):
+    from kitbench.recording.dataset import RECORDING_FILE
+
+    rewards = {}
+    for mode in ("sparse", "dense"):
+        out = tmp_path / mode
+        record(
+            RecordConfig(task="LiftPegUpright-v1", episodes=1, out=out, mcap=False, reward_mode=mode), progress=False
+        )
+        assert json.loads((out / RECORDING_FILE).read_text())["reward_mode"] == mode
+        rewards[mode] = _columns(out)["next.reward"].ravel()
+    # sparse: 1 on the success step the expert's episode ends at, 0 before it; dense: graded, never below 0
+    assert set(np.unique(rewards["sparse"])) == {0.0, 1.0} and rewards["sparse"][-1] == 1.0
+    assert len(np.unique(rewards["dense"])) > 2 and len(rewards["dense"]) == len(rewards["sparse"])
+
+
 @pytest.mark.parametrize(
     "kwargs,needle",
     [
@@ -274,6 +290,10 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
         ({"max_attempts": 1}, "max_attempts must be a positive integer >= episodes (2), got 1"),
         ({"repo_id": "a/b/c"}, "invalid repo_id 'a/b/c': repo id must be in the form"),
         ({"resume": True}, "nothing to resume at"),
+        (
+            {"reward_mode": "shaped"},
+            "unknown reward_mode 'shaped'; valid choices: dense, normalized_dense, sparse, none",
+        ),
     ],
 )
 def test_bad_input_writes_nothing(tmp_path, kwargs, needle):

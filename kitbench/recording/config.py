@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
 from kitbench.recording.noise import check_noise_scale
@@ -42,6 +43,8 @@ class RecordConfig:
     # the control mode (recording/noise.py; labels stay clean), and episodes run this many steps past success.
     action_noise: float = 0.0
     settle_steps: int = 0
+    # What `next.reward` holds (kitbench.envs.modes.REWARD_MODES); stored with the recording's settings.
+    reward_mode: str = "dense"
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
@@ -66,6 +69,7 @@ class RecordConfig:
             "only_success",
             "action_noise",
             "settle_steps",
+            "reward_mode",
         )
         return {**{k: getattr(self, k) for k in settings}, "kitbench_version": kitbench.__version__}
 
@@ -98,6 +102,8 @@ def validate(config: RecordConfig) -> None:
         raise KitbenchError(f"episodes must be a positive integer, got {config.episodes!r}")
     if not _is_count(config.workers):
         raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
+    if config.reward_mode not in REWARD_MODES:
+        raise KitbenchError(f"unknown reward_mode {config.reward_mode!r}; valid choices: {', '.join(REWARD_MODES)}")
     check_seed(config.seed)
     check_noise_scale(config.action_noise)
     if (
@@ -222,4 +228,6 @@ def _check_output(config: RecordConfig) -> None:
 def make_recording_env(config: RecordConfig):
     from kitbench.registration import make_env
 
-    return make_env(config.task, obs_mode=config.obs_mode, control_mode=config.control_mode, reward_mode="dense")
+    return make_env(
+        config.task, obs_mode=config.obs_mode, control_mode=config.control_mode, reward_mode=config.reward_mode
+    )
