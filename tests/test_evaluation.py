@@ -251,6 +251,15 @@ def test_videos_replay_the_scored_episodes(tmp_path, needs_vulkan):
     with av.open(str(tmp_path / video["path"])) as container:
         frames = sum(1 for _ in container.decode(video=0))
     assert frames == report["per_episode"][0]["length"] + 1  # the reset state and one frame per step
+    # the wall time covers every part, the video pass included, and the rate is over the wall time
+    timing = report["timing"]
+    parts = ("setup_seconds", "scoring_seconds", "report_seconds", "video_seconds")
+    assert all(timing[p] > 0 for p in parts)
+    assert sum(timing[p] for p in parts) == pytest.approx(timing["seconds"], abs=0.05)
+    scored_and_reported = timing["seconds"] - timing["video_seconds"]
+    assert timing["episodes_per_minute"] == pytest.approx(60.0 * 2 / scored_and_reported, rel=1e-6)
+    text = (tmp_path / "report.md").read_text()
+    assert f"Evaluated in {timing['seconds']:.1f} s wall time" in text and "videos " in text
 
 
 # -- command line ----------------------------------------------------------------------------------

@@ -19,6 +19,17 @@ from kitbench.registration import task_entry
 REPORT_VERSION = 1
 
 
+def _timing_parts(timing: dict) -> str:
+    """The wall time's parts, as `report.json`'s `timing` gives them (older reports have fewer)."""
+    parts = (
+        ("setup_seconds", "setup"),
+        ("scoring_seconds", "episodes"),
+        ("report_seconds", "report"),
+        ("video_seconds", "videos"),
+    )
+    return ", ".join(f"{label} {timing[key]:.1f} s" for key, label in parts if key in timing)
+
+
 def _per_group(results: list[EpisodeResult], id_key: str, name_key: str) -> list[dict]:
     """Success and criteria rates per value of `episode_config()[id_key]` (the task's `report_groups`)."""
     groups: dict = {}
@@ -179,8 +190,8 @@ def markdown(report: dict) -> str:
         lines += [
             "",
             (
-                f"Evaluated in {timing['seconds']:.1f} s with {timing['workers']} worker(s) "
-                f"({timing['episodes_per_minute']:.1f} episodes/min)."
+                f"Evaluated in {timing['seconds']:.1f} s wall time with {timing['workers']} worker(s), "
+                f"{timing['episodes_per_minute']:.1f} episodes/min: " + _timing_parts(timing) + "."
             ),
         ]
     failures = [e for e in report["per_episode"] if not e["success"]]
