@@ -125,9 +125,39 @@ def test_mcap_logs_use_foxglove_schemas_and_match_frames(state_dataset):
             assert topics["/tf"] == ("foxglove.FrameTransforms", "protobuf")
             assert topics["/joint_states"] == ("foxglove.JointStates", "protobuf")
             assert {"/action", "/reward", "/planner"} <= set(topics)
-            assert all(n == m["length"] for n in counts.values()), counts
-            times = [msg.log_time for _, ch, msg in reader.iter_messages(topics=["/reward"])]
-            assert times == [round((i + 1) * 0.05e9) for i in range(m["length"])]  # simulation time
+            n = m["length"]
+            # one state per dataset frame plus the state after the last step; one action and outcome per step
+            assert counts == {"/tf": n + 1, "/joint_states": n + 1, "/action": n, "/planner": n, "/reward": n}, counts
+
+
+def test_mcap_and_dataset_read_side_by_side(state_dataset):
+    """Frame k's timestamp stamps the state the policy saw and the action executed in it; the step's reward
+    arrives one step later; every channel numbers its messages from 0."""
+    from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
+    from mcap.reader import make_reader
+
+    out, _ = state_dataset
+    columns = _columns(out)
+    for episode in range(3):
+        rows = np.flatnonzero(columns["episode_index"].ravel() == episode)
+        # the dataset stores float32 seconds (1.05 s reads 1.0499999523): equal within a microsecond
+        stamps = columns["timestamp"].ravel()[rows].astype(np.float64) * 1e9
+        with open(out / "mcap" / f"episode_{episode:06d}.mcap", "rb") as f:
+            messages: dict[str, list] = {}
+            for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+                messages.setdefault(channel.topic, []).append(message)
+        for topic, got in messages.items():
+            assert [m.sequence for m in got] == list(range(len(got))), topic
+        joints = [JointStates.FromString(m.data) for m in messages["/joint_states"]]
+        np.testing.assert_allclose([m.log_time for m in messages["/joint_states"][:-1]], stamps, atol=1e3, rtol=0)
+        arm = np.array([[j.position for j in js.joints[:7]] for js in joints[:-1]])
+        np.testing.assert_allclose(arm, columns["observation.state"][rows, :7], atol=1e-6)
+        np.testing.assert_allclose([m.log_time for m in messages["/action"]], stamps, atol=1e3, rtol=0)
+        actions = np.array([json.loads(m.data)["action"] for m in messages["/action"]])
+        np.testing.assert_allclose(actions, columns["executed_action"][rows], atol=1e-6)
+        np.testing.assert_allclose([m.log_time for m in messages["/reward"]], stamps + 0.05e9, atol=1e3, rtol=0)
+        rewards = [json.loads(m.data)["reward"] for m in messages["/reward"]]
+        np.testing.assert_allclose(rewards, columns["next.reward"][rows].ravel(), rtol=1e-6)
 
 
 def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan, capfd):

@@ -2,7 +2,14 @@
 
 Topics: `/tf` (FrameTransforms: every robot link, the TCP, task objects and goals, in the world frame),
 `/joint_states` (JointStates), `/camera/<name>` (CompressedImage, JPEG), and JSON channels `/action`,
-`/reward` (reward and success) and `/planner` (phase and TCP target). Log time is simulation time.
+`/reward` (reward and success) and `/planner` (phase and TCP target).
+
+Times match the dataset's: frame k of an episode has timestamp k * dt, and so do the state the policy saw
+(`/tf`, `/joint_states`, `/camera/*`) and the action executed in it (`/action`: the dataset's `executed_action`;
+`/planner`); the reward and
+success the step earned (`next.reward`, `next.success`) are stamped (k + 1) * dt, when they arrive, and the state
+after the last step is logged too (one more than the dataset's frames). Every channel numbers its messages
+from 0 (`sequence`).
 """
 
 from __future__ import annotations
@@ -60,10 +67,11 @@ class EpisodeMcap:
         self.messages: dict[str, int] = dict.fromkeys(self._channels, 0)
 
     def _write(self, topic: str, data: bytes, t_ns: int) -> None:
-        self._writer.add_message(self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data)
-        self.messages[topic] += 1
+        sequence = self.messages[topic]
+        self._writer.add_message(self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data, sequence=sequence)
+        self.messages[topic] = sequence + 1
 
-    def log_step(
+    def log_state(
         self,
         t_ns: int,
         *,
@@ -72,13 +80,8 @@ class EpisodeMcap:
         qpos,
         qvel,
         images: dict[str, np.ndarray],
-        action,
-        reward: float,
-        success: bool,
-        phase: str | None = None,
-        tcp_target: np.ndarray | None = None,
     ) -> None:
-        """One control step. `frames` maps a child frame to its world (position, wxyz quaternion)."""
+        """The scene at `t_ns`. `frames` maps a child frame to its world (position, wxyz quaternion)."""
         stamp = _stamp(t_ns)
         tf = FrameTransforms()
         for child, (p, q) in frames.items():
@@ -96,11 +99,17 @@ class EpisodeMcap:
             Image.fromarray(np.ascontiguousarray(rgb)).save(buf, format="JPEG", quality=self._jpeg_quality)
             msg = CompressedImage(timestamp=stamp, frame_id=camera, data=buf.getvalue(), format="jpeg")
             self._write(f"/camera/{camera}", msg.SerializeToString(), t_ns)
+
+    def log_action(self, t_ns: int, action, phase: str | None = None, tcp_target: np.ndarray | None = None) -> None:
+        """The action chosen in the state logged at `t_ns`, and the planner's phase and target for it."""
         self._write("/action", json.dumps({"action": [float(a) for a in action]}).encode(), t_ns)
-        self._write("/reward", json.dumps({"reward": float(reward), "success": bool(success)}).encode(), t_ns)
         if phase is not None:
             target = [] if tcp_target is None else [float(v) for v in np.ravel(tcp_target)]
             self._write("/planner", json.dumps({"phase": phase, "tcp_target": target}).encode(), t_ns)
+
+    def log_outcome(self, t_ns: int, reward: float, success: bool) -> None:
+        """What the step ending at `t_ns` earned."""
+        self._write("/reward", json.dumps({"reward": float(reward), "success": bool(success)}).encode(), t_ns)
 
     def close(self) -> None:
         if self._file is not None:

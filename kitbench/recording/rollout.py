@@ -57,6 +57,12 @@ def _world_frames(u) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return frames
 
 
+def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, images) -> None:
+    log.log_state(
+        t_ns, frames=_world_frames(u), joint_names=joint_names, qpos=u.robot.qpos(), qvel=u.robot.qvel(), images=images
+    )
+
+
 def run_episode(
     env, policy, seed: int, mcap_path: Path | None = None, action_noise: float = 0.0, settle_steps: int = 0
 ) -> EpisodeRecord:
@@ -80,10 +86,15 @@ def run_episode(
                 images = {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names}
                 for c, rgb in images.items():
                     frame[f"observation.images.{c}"] = rgb
+            if log is not None:
+                _log_state(log, u, step * dt_ns, joint_names, images)
             action = np.clip(np.asarray(policy.act(obs), dtype=np.float32), u.action_space.low, u.action_space.high)
             # no noise once the task is done: settling shows the finished state held, which LiftPegUpright's
             # 2 mm height tolerance does not survive at 0.01 rad of joint noise (1 of 20 episodes stayed a success)
             executed = action if noise is None or record.first_success is not None else noise.perturb(action)
+            if log is not None:
+                phase = getattr(policy, "phase", None) or "policy"
+                log.log_action(step * dt_ns, executed, phase, getattr(policy, "tcp_target", None))
             obs, reward, terminated, truncated, info = env.step(executed)
             if info["success"] and record.first_success is None:
                 record.first_success = step
@@ -99,22 +110,12 @@ def run_episode(
             frame["next.success"] = np.array([bool(info["success"])], dtype=bool)
             record.frames.append(frame)
             if log is not None:
-                log.log_step(
-                    (step + 1) * dt_ns,
-                    frames=_world_frames(u),
-                    joint_names=joint_names,
-                    qpos=u.robot.qpos(),
-                    qvel=u.robot.qvel(),
-                    images={c: obs["sensor_data"][c]["rgb"] for c in u.camera_names},
-                    action=executed,
-                    reward=reward,
-                    success=bool(info["success"]),
-                    phase=getattr(policy, "phase", None) or "policy",
-                    tcp_target=getattr(policy, "tcp_target", None),
-                )
+                log.log_outcome((step + 1) * dt_ns, reward, bool(info["success"]))
             step += 1
             if terminated or truncated:
                 break
+        if log is not None:  # the state the last action led to (the dataset has no frame for it)
+            _log_state(log, u, step * dt_ns, joint_names, {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names})
     finally:
         if log is not None:
             log.close()
