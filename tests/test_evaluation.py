@@ -313,3 +313,25 @@ def test_cli_runs_a_suite_and_prints_the_summary(tmp_path):
 def test_suite_settings_are_validated_like_files():
     with pytest.raises(ValueError, match="unknown obs_mode 'depth'"):
         Suite(name="x", task="LiftPegUpright-v1", seeds=(1,), obs_mode="depth")
+
+
+def test_histograms_count_in_whole_episodes_keep_the_legend_off_the_bars_and_say_when_empty():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from kitbench.evaluation.plots import draw_histogram
+
+    fig, (full, empty) = plt.subplots(1, 2)
+    draw_histogram(full, [27, 28, 28], [200], "control steps")
+    draw_histogram(empty, [], [], "control steps to first success")
+    fig.canvas.draw()
+    ticks = full.get_yticks()
+    assert len(ticks) >= 2 and all(float(t).is_integer() for t in ticks)
+    legend = full.get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == ["success", "failure"]
+    renderer = fig.canvas.get_renderer()
+    assert legend.get_window_extent(renderer).x0 >= full.get_window_extent(renderer).x1  # beside the axes
+    assert [t.get_text() for t in empty.texts] == ["no episode to show"] and empty.get_legend() is None
+    plt.close(fig)

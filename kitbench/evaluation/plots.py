@@ -28,6 +28,24 @@ def _rates(ax, labels, rows):
     ax.set_ylabel("rate (95% Wilson CI)")
 
 
+def draw_histogram(ax, ok: list, bad: list, xlabel: str) -> None:
+    """Successes and failures stacked, counts on whole-number ticks, the legend beside the bars (never over
+    them), and a note instead of an empty frame when there is nothing to show (e.g. time to success for a
+    policy that never succeeds)."""
+    from matplotlib.ticker import MaxNLocator
+
+    data, labels = [d for d in (ok, bad) if d], [lbl for d, lbl in ((ok, "success"), (bad, "failure")) if d]
+    if data:
+        colors = {"success": "#55a868", "failure": "#c44e52"}
+        ax.hist(data, bins=20, stacked=True, label=labels, color=[colors[lbl] for lbl in labels])
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    else:
+        ax.text(0.5, 0.5, "no episode to show", ha="center", va="center", transform=ax.transAxes, color="0.4")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("episodes")
+
+
 def write_plots(report: dict, folder: Path) -> list[Path]:
     """One PNG per view: success and criteria, episode length, return, time to success, per group (the task's
     `report_groups`, e.g. per shape)."""
@@ -50,18 +68,7 @@ def write_plots(report: dict, folder: Path) -> list[Path]:
         plt, fig, ax = _figure()
         ok = [e[key] for e in episodes if e["success"] and e[key] is not None]
         bad = [e[key] for e in episodes if not e["success"] and e[key] is not None]
-        data, labels = [d for d in (ok, bad) if d], [lbl for d, lbl in ((ok, "success"), (bad, "failure")) if d]
-        if data:
-            ax.hist(
-                data,
-                bins=20,
-                stacked=True,
-                label=labels,
-                color=["#55a868", "#c44e52"][: len(data)] if labels[0] == "success" else ["#c44e52"],
-            )
-            ax.legend()
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("episodes")
+        draw_histogram(ax, ok, bad, xlabel)
         ax.set_title(title, fontsize=9)
         written.append(_save(plt, fig, folder / f"{name}.png"))
 
