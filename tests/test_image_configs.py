@@ -6,18 +6,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from kitbench.recording.recorder import load_recipe, record
+from tests.lerobot_cli import BIN, OFFLINE, lerobot_train
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
-OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
 IMAGE_CONFIGS = sorted((ROOT / "policies").glob("*_rgb.json"))
 EPISODES = 2
 
@@ -44,21 +41,18 @@ def test_image_config_trains_on_a_cpu_and_its_checkpoint_is_scored(path, needs_v
     assert config["policy"]["device"] == "cuda"
     data = datasets[config["dataset"]["root"]]
     out = tmp_path / "train"
-    cmd = [
-        str(BIN / "lerobot-train"),
-        f"--config_path={path}",
-        f"--dataset.root={data}",
-        f"--output_dir={out}",
+    lerobot_train(
+        path,
+        data,
+        out,
+        tmp_path,
         "--policy.device=cpu",
         "--steps=2",
         "--batch_size=2",
-        "--num_workers=0",
         "--save_freq=2",
         "--env_eval_freq=0",
         "--log_freq=1",
-    ]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    )
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((checkpoint / "config.json").read_text())
     assert any(name.startswith("observation.images.") for name in saved["input_features"]), saved["input_features"]

@@ -4,7 +4,6 @@ with kitbench and with lerobot-eval on the kitbench env plugin."""
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
 import sys
@@ -15,10 +14,9 @@ import pytest
 
 import kitbench  # noqa: F401
 from kitbench.recording.recorder import RecordConfig, record
+from tests.lerobot_cli import BIN, OFFLINE, lerobot_train
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
-OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
 
 
 @pytest.fixture(scope="module")
@@ -29,14 +27,13 @@ def checkpoint(tmp_path_factory):
     config = RecordConfig(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False, control_mode="pd_joint_pos")
     record(config, progress=False)
     out = base / "train"
-    cmd = [
-        str(BIN / "lerobot-train"),
-        f"--config_path={ROOT / 'policies/act_lift_peg_upright_state.json'}",
-        f"--dataset.root={data}",
-        f"--output_dir={out}",
+    log = lerobot_train(
+        ROOT / "policies/act_lift_peg_upright_state.json",
+        data,
+        out,
+        base,
         "--steps=4",
         "--batch_size=4",
-        "--num_workers=0",
         "--save_freq=4",
         # evaluation during training on the kitbench env, two async envs, as the shipped configs do
         "--env_eval_freq=4",
@@ -44,10 +41,7 @@ def checkpoint(tmp_path_factory):
         "--eval.batch_size=2",
         "--eval.use_async_envs=true",
         "--log_freq=2",
-    ]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=base)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    log = run.stdout + run.stderr
+    )
     assert re.search(r"success(:\s*|_rate=)\d", log), log[-3000:]  # the evaluation ran and reported success
     ckpt = out / "checkpoints" / "last" / "pretrained_model"
     assert (ckpt / "model.safetensors").is_file()
