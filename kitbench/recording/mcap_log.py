@@ -6,10 +6,9 @@ Topics: `/tf` (FrameTransforms: every robot link, the TCP, task objects and goal
 
 Times match the dataset's: frame k of an episode has timestamp k * dt, and so do the state the policy saw
 (`/tf`, `/joint_states`, `/camera/*`) and the action executed in it (`/action`: the dataset's `executed_action`;
-`/planner`); the reward and
-success the step earned (`next.reward`, `next.success`) are stamped (k + 1) * dt, when they arrive, and the state
-after the last step is logged too (one more than the dataset's frames). Every channel numbers its messages
-from 0 (`sequence`).
+`/planner`). The reward and success the step earned (`next.reward`, `next.success`) are stamped (k + 1) * dt,
+when they arrive, and the state after the last step is logged too (one more than the dataset's frames). Every
+channel numbers its messages from 0 (`sequence`).
 """
 
 from __future__ import annotations

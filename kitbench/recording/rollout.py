@@ -57,6 +57,11 @@ def _world_frames(u) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return frames
 
 
+def _camera_images(u, obs) -> dict[str, np.ndarray]:
+    """Each camera's RGB image in `obs` (none for state observations)."""
+    return {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names}
+
+
 def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, images) -> None:
     log.log_state(
         t_ns, frames=_world_frames(u), joint_names=joint_names, qpos=u.robot.qpos(), qvel=u.robot.qvel(), images=images
@@ -81,11 +86,9 @@ def run_episode(
                 "observation.state": u.robot_state(),
                 "observation.environment_state": u.environment_state(),
             }
-            images = {}
-            if u.camera_names:
-                images = {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names}
-                for c, rgb in images.items():
-                    frame[f"observation.images.{c}"] = rgb
+            images = _camera_images(u, obs)
+            for c, rgb in images.items():
+                frame[f"observation.images.{c}"] = rgb
             if log is not None:
                 _log_state(log, u, step * dt_ns, joint_names, images)
             action = np.clip(np.asarray(policy.act(obs), dtype=np.float32), u.action_space.low, u.action_space.high)
@@ -115,7 +118,7 @@ def run_episode(
             if terminated or truncated:
                 break
         if log is not None:  # the state the last action led to (the dataset has no frame for it)
-            _log_state(log, u, step * dt_ns, joint_names, {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names})
+            _log_state(log, u, step * dt_ns, joint_names, _camera_images(u, obs))
     finally:
         if log is not None:
             log.close()
