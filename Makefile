@@ -17,7 +17,7 @@ system:
 $(STAMP): uv.lock pyproject.toml .python-version
 	@UV=$$(bash scripts/ensure-uv.sh) && \
 	  echo "kitbench: syncing the environment from uv.lock" && \
-	  $$UV sync --frozen --compile-bytecode --quiet || { \
+	  $$UV sync --frozen --all-extras --compile-bytecode --quiet || { \
 	    echo "kitbench: 'uv sync --frozen' failed: it needs Python 3.12 (see .python-version) and the package index" >&2; exit 1; }
 	@touch $@
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import kitbench
+from kitbench.engine.executor import EXECUTORS
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.registration import GYM_NAMESPACE, TASKS, canonical_task
@@ -58,6 +59,8 @@ def _record(args) -> int:
         "action_noise": args.action_noise,
         "settle_steps": args.settle_steps,
         "reward_mode": args.reward_mode,
+        "executor": args.executor,
+        "ray_address": args.ray_address,
     }
     try:
         if args.recipe:
@@ -102,11 +105,17 @@ def eval_config_from_args(args):
             raise KitbenchError(f"missing {', '.join(missing)} (or give --suite eval/suites/<name>.toml)")
         suite = adhoc_suite(args.task, args.episodes, DEFAULT_FIRST_SEED if args.seed is None else args.seed, **modes)
     out = Path(args.out) if args.out else Path("outputs/eval") / suite.task / _slug(args.policy)
+
+    def chosen(flag, key, default):  # the flag, else the suite's setting, else the default
+        return flag if flag is not None else default if getattr(suite, key) is None else getattr(suite, key)
+
     return EvalConfig(
         suite=suite,
         policy=args.policy,
         out=out,
-        workers=args.workers,
+        workers=chosen(args.workers, "workers", 1),
+        executor=chosen(args.executor, "executor", "local"),
+        ray_address=chosen(args.ray_address, "ray_address", "auto"),
         videos=args.videos,
         explicit=explicit,
         overwrite=args.overwrite,
@@ -130,6 +139,18 @@ def _eval(args) -> int:
         print(f"kitbench eval: videos failed: {video_error}", file=sys.stderr)
         return 1
     return 0
+
+
+def _executor_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--executor",
+        help=f"where episodes run: {' or '.join(EXECUTORS)} (default local: this process, or --workers processes)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        dest="ray_address",
+        help="with --executor ray: auto (default: the running cluster, else a local one), local, or a head's host:port",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -161,7 +182,12 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
     rec.add_argument("--policy", help="expert (default), random or zero")
     rec.add_argument("--only-success", dest="only_success", action="store_true", help="store successful episodes only")
-    rec.add_argument("--workers", type=int, help="simulator processes (default 1); the dataset does not depend on it")
+    rec.add_argument(
+        "--workers",
+        type=int,
+        help="simulator workers (processes or Ray actors; default 1); the dataset does not depend on it",
+    )
+    _executor_flags(rec)
     rec.add_argument("--resume", action="store_true", help="continue an interrupted recording in --out")
     rec.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     rec.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=None, help="write MCAP logs (default on)")
@@ -214,8 +240,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("--suite", help="a suite file (eval/suites/<name>.toml): task, seeds and modes")
     ev.add_argument(
-        "--workers", type=int, default=1, help="simulator processes (default 1); results do not depend on it"
+        "--workers",
+        type=int,
+        help="simulator workers (processes or Ray actors; default 1); results do not depend on it",
     )
+    _executor_flags(ev)
     ev.add_argument("--videos", type=int, default=0, help="episodes to film, failures and successes both (default 0)")
     ev.add_argument("--out", help="report folder (default outputs/eval/<task>/<policy>)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing report in --out")

@@ -13,11 +13,11 @@ import pytest
 
 import kitbench  # noqa: F401
 from kitbench.errors import KitbenchError
-from kitbench.evaluation import runner
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.report import build_report, markdown
 from kitbench.evaluation.runner import EvalConfig, run_eval
 from kitbench.evaluation.suite import load_suite
+from kitbench.evaluation.work import EvalWork
 from kitbench.tasks.lift_peg_upright import LiftPegUprightEnv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,16 +66,13 @@ def test_without_a_render_device_the_report_is_kept_and_says_why_there_are_no_vi
 def test_videos_made_before_a_failure_stay_listed(tmp_path, monkeypatch):
     calls = []
 
-    def film_once(job):
-        seed, path, _ = job
-        calls.append(seed)
+    def film_once(work, job):
+        calls.append(job.seed)
         if len(calls) > 1:
             raise ValueError("encoder gave up\nat frame 3")
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        Path(path).write_bytes(b"not really a video")
-        return runner._worker_episode(seed)
+        return work.run(job.seed), b"not really a video"
 
-    monkeypatch.setattr(runner, "_worker_video", film_once)
+    monkeypatch.setattr(EvalWork, "film", film_once)
     monkeypatch.setattr("kitbench.doctor.vulkan_error", lambda: None)  # this machine could render
     report = run_eval(EvalConfig(_suite(3), "zero", tmp_path / "report", videos=2), progress=False)
     assert report["output"]["video_error"] == "ValueError: encoder gave up"

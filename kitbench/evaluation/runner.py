@@ -1,4 +1,5 @@
-"""Run a policy over a suite's seeds (in one or several processes), write the report, then film a few episodes.
+"""Run a policy over a suite's seeds on the rollout engine (`kitbench.engine`: this process, a local process pool
+or Ray actors), write the report, then film a few episodes.
 
 Episodes are scored without rendering unless the policy itself looks at images. Videos are made afterwards by
 replaying the chosen seeds in an env that renders: episodes are deterministic in their seed, so the filmed
@@ -9,16 +10,16 @@ the report then says why there are no videos (`output.video_error`).
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import shutil
-import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
 from kitbench.errors import KitbenchError
-from kitbench.evaluation.episode import EpisodeResult, evaluate_episode
+from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.suite import Suite
+from kitbench.evaluation.work import EvalWork, Film, make_suite_env
 
 REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
 
@@ -30,6 +31,9 @@ class EvalConfig:
     out: Path
     workers: int = 1
     videos: int = 0
+    # Where episodes run (kitbench.engine.ExecutorConfig); the numbers do not depend on it.
+    executor: str = "local"
+    ray_address: str = "auto"
     # Replace the report in an existing non-empty `out` folder (its report.json/.md, plots and videos; nothing
     # else in the folder is touched). Without it such a folder is refused.
     overwrite: bool = False
@@ -71,77 +75,6 @@ def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite
     return replace(suite, **changes) if changes else suite
 
 
-def _make_env(suite: Suite, render: bool = False):
-    from kitbench.registration import make_env
-
-    return make_env(
-        suite.task,
-        obs_mode=suite.obs_mode,
-        control_mode=suite.control_mode,
-        reward_mode=suite.reward_mode,
-        render_mode="rgb_array" if render else None,
-    )
-
-
-# -- workers ---------------------------------------------------------------------------------------
-_WORKER: dict = {}
-
-
-def _worker_init(suite: Suite, policy_spec: str, single_thread: bool) -> None:
-    from kitbench.policies.registry import make_policy
-
-    _WORKER.update(suite=suite, env=_make_env(suite), policy=make_policy(policy_spec), video_env=None)
-    if single_thread and "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(1)  # N workers on N cores: no oversubscription
-
-
-def _worker_episode(seed: int) -> EpisodeResult:
-    return evaluate_episode(_WORKER["env"], _WORKER["policy"], seed)
-
-
-def _worker_video(job: tuple[int, str, int]) -> EpisodeResult:
-    from kitbench.evaluation.video import write_mp4
-
-    seed, path, fps = job
-    if _WORKER["video_env"] is None:
-        _WORKER["video_env"] = _make_env(_WORKER["suite"], render=True)
-    frames: list = []
-    result = evaluate_episode(_WORKER["video_env"], _WORKER["policy"], seed, frames)
-    write_mp4(Path(path), frames, fps)
-    return result
-
-
-def _close_worker() -> None:
-    for key in ("env", "video_env"):
-        if _WORKER.get(key) is not None:
-            _WORKER[key].close()
-    _WORKER.clear()
-
-
-class _Runner:
-    """Maps jobs over the worker functions, in order, in this process or in a pool of spawned processes."""
-
-    def __init__(self, suite: Suite, policy_spec: str, workers: int):
-        self.workers = workers
-        if workers == 1:
-            _worker_init(suite, policy_spec, single_thread=False)
-            self._pool = None
-        else:
-            self._pool = mp.get_context("spawn").Pool(workers, _worker_init, (suite, policy_spec, True))
-
-    def map(self, fn, jobs):
-        if self._pool is None:
-            return map(fn, jobs)
-        return self._pool.imap(fn, jobs)
-
-    def close(self):
-        if self._pool is None:
-            _close_worker()
-        else:
-            self._pool.terminate()
-            self._pool.join()
-
-
 # -- the evaluation --------------------------------------------------------------------------------
 def pick_video_seeds(results: list[EpisodeResult], count: int) -> list[EpisodeResult]:
     """`count` episodes to film, failures and successes both: half of each (the first ones by seed order),
@@ -169,8 +102,7 @@ def validate(config: EvalConfig):
     """Every check that can fail before anything is written or run at length; returns (suite, policy)."""
     from kitbench.policies.registry import make_policy
 
-    if not isinstance(config.workers, int) or config.workers < 1:
-        raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
+    ExecutorConfig(config.executor, config.workers, config.ray_address).validate()
     if not isinstance(config.videos, int) or config.videos < 0:
         raise KitbenchError(f"videos must be a non-negative integer, got {config.videos!r}")
     check_out_folder(Path(config.out), config.overwrite)
@@ -179,7 +111,7 @@ def validate(config: EvalConfig):
     from kitbench.doctor import require_renderer
 
     require_renderer(suite.obs_mode)
-    env = _make_env(suite)
+    env = make_suite_env(suite)
     try:
         obs, info = env.reset(seed=suite.seeds[0])
         policy.reset(env, suite.seeds[0], obs, info)  # policies check the env fits them here
@@ -198,16 +130,16 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     suite, policy, timestep, fps = validate(config)
     del policy
     out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for stale in (REPORT_JSON, REPORT_MD):
-        (out / stale).unlink(missing_ok=True)
-    for stale in (PLOTS_DIR, VIDEOS_DIR):
-        shutil.rmtree(out / stale, ignore_errors=True)
-
     start = time.monotonic()
-    runner = _Runner(suite, config.policy, min(config.workers, len(suite.seeds)))
-    try:
-        results = _score(runner, suite, progress)
+    executor = make_executor(ExecutorConfig(config.executor, config.workers, config.ray_address), len(suite.seeds))
+    # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
+    with RolloutEngine(executor, EvalWork(suite, config.policy)) as engine:
+        out.mkdir(parents=True, exist_ok=True)
+        for stale in (REPORT_JSON, REPORT_MD):
+            (out / stale).unlink(missing_ok=True)
+        for stale in (PLOTS_DIR, VIDEOS_DIR):
+            shutil.rmtree(out / stale, ignore_errors=True)
+        results = _score(engine, suite, progress)
         scored = time.monotonic()
         report = _write_report(suite, config.policy, results, timestep, out)
         reported = time.monotonic()
@@ -221,26 +153,25 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             "scoring_seconds": scored - start,
             "report_seconds": reported - scored,
             "video_seconds": 0.0,
-            "workers": runner.workers,
+            "workers": engine.workers,
+            "executor": config.executor,
             "episodes_per_minute": 60.0 * len(results) / max(reported - wall_start, 1e-9),
         }
         _save(report, out)
         chosen = pick_video_seeds(results, config.videos)
         if chosen:
             try:
-                _film(runner, chosen, out, fps, report["output"]["videos"])
+                _film(engine, chosen, out, fps, report["output"]["videos"])
             except Exception as exc:  # noqa: BLE001 - the scores stand whatever stops the videos; the report says why
                 report["output"]["video_error"] = _video_error(exc)
             now = time.monotonic()
             report["timing"]["video_seconds"] = now - reported
             report["timing"]["seconds"] = now - wall_start
             _save(report, out)
-    finally:
-        runner.close()
     return report
 
 
-def _score(runner: _Runner, suite: Suite, progress: bool) -> list[EpisodeResult]:
+def _score(engine: RolloutEngine, suite: Suite, progress: bool) -> list[EpisodeResult]:
     bar = None
     if progress:
         from kitbench.progress import progress as progress_bar
@@ -248,7 +179,7 @@ def _score(runner: _Runner, suite: Suite, progress: bool) -> list[EpisodeResult]
         bar = progress_bar(len(suite.seeds), f"eval {suite.task}")
     results: list[EpisodeResult] = []
     try:
-        for result in runner.map(_worker_episode, suite.seeds):
+        for result in engine.map(suite.seeds):
             results.append(result)
             if bar is not None:
                 bar.update(1)
@@ -276,14 +207,15 @@ def _save(report: dict, out: Path) -> None:
     write_json(report, out / REPORT_JSON)  # last: a report.json means the report.md beside it is complete
 
 
-def _film(runner: _Runner, chosen: list[EpisodeResult], out: Path, fps: int, videos: list[dict]) -> None:
+def _film(engine: RolloutEngine, chosen: list[EpisodeResult], out: Path, fps: int, videos: list[dict]) -> None:
     """Replay and film `chosen`, appending each video to `videos` as soon as it is written (so the ones made
     before a failure stay listed)."""
-    jobs = [
-        (r.seed, str(out / VIDEOS_DIR / f"seed{r.seed}_{'success' if r.success else 'failure'}.mp4"), fps)
-        for r in chosen
-    ]
-    for scored, replayed, (_, path, _) in zip(chosen, runner.map(_worker_video, jobs), jobs, strict=True):
+    for scored, (replayed, mp4) in zip(chosen, engine.map(Film(r.seed, fps) for r in chosen), strict=True):
+        path = out / VIDEOS_DIR / f"seed{scored.seed}_{'success' if scored.success else 'failure'}.mp4"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f".{path.name}.partial")
+        partial.write_bytes(mp4)
+        partial.replace(path)  # a video under its name is whole
         same = (replayed.success, replayed.length, replayed.episode_return) == (
             scored.success,
             scored.length,
@@ -294,7 +226,7 @@ def _film(runner: _Runner, chosen: list[EpisodeResult], out: Path, fps: int, vid
                 "seed": scored.seed,
                 "success": scored.success,
                 "failure": scored.failure,
-                "path": str(Path(path).relative_to(out)),
+                "path": str(path.relative_to(out)),
                 "matches_scored_episode": same,
             }
         )

@@ -18,7 +18,18 @@ from kitbench.registration import TASKS, canonical_task, task_entry
 from kitbench.settings import check_seed, is_seed, read_settings
 
 OBS_MODES_EVALUABLE = ("state", "rgb", "rgbd")
-SUITE_KEYS = ("name", "task", "seeds", "obs_mode", "control_mode", "reward_mode", "description")
+SUITE_KEYS = (
+    "name",
+    "task",
+    "seeds",
+    "obs_mode",
+    "control_mode",
+    "reward_mode",
+    "description",
+    "executor",
+    "workers",
+    "ray_address",
+)
 SUITE_TABLE = "suite"
 DEFAULT_FIRST_SEED = 1_000_000
 
@@ -33,6 +44,11 @@ class Suite:
     reward_mode: str = "dense"
     description: str = ""
     source: str | None = field(default=None, compare=False)  # the file it came from
+    # Where the suite's episodes run by default (kitbench.engine.ExecutorConfig; flags override them). Not part of
+    # what the suite is: the numbers do not depend on them, so they are left out of comparisons and reports.
+    executor: str | None = field(default=None, compare=False)
+    workers: int | None = field(default=None, compare=False)
+    ray_address: str | None = field(default=None, compare=False)
 
     def __post_init__(self):
         # stored by its short name, so reports and output folders are the same whichever spelling was given

@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench.engine.executor import ExecutorConfig
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
@@ -45,11 +46,19 @@ class RecordConfig:
     settle_steps: int = 0
     # What `next.reward` holds (kitbench.envs.modes.REWARD_MODES); stored with the recording's settings.
     reward_mode: str = "dense"
+    # Where episodes run (kitbench.engine.ExecutorConfig): this machine (`workers` processes) or a Ray cluster.
+    # Not part of the identity: a dataset is the same whichever ran it, so a resume may change them.
+    executor: str = "local"
+    ray_address: str = "auto"
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
         # --resume comparison do not depend on the spelling
         object.__setattr__(self, "task", canonical_task(self.task))
+
+    @property
+    def executor_config(self) -> ExecutorConfig:
+        return ExecutorConfig(self.executor, self.workers, self.ray_address)
 
     @property
     def dataset_repo_id(self) -> str:
@@ -100,8 +109,6 @@ def validate(config: RecordConfig) -> None:
         )
     if not _is_count(config.episodes):
         raise KitbenchError(f"episodes must be a positive integer, got {config.episodes!r}")
-    if not _is_count(config.workers):
-        raise KitbenchError(f"workers must be a positive integer, got {config.workers!r}")
     if config.reward_mode not in REWARD_MODES:
         raise KitbenchError(f"unknown reward_mode {config.reward_mode!r}; valid choices: {', '.join(REWARD_MODES)}")
     check_seed(config.seed)
@@ -125,6 +132,7 @@ def validate(config: RecordConfig) -> None:
         check_repo_id(config.repo_id)
     if config.resume and config.overwrite:
         raise KitbenchError("--resume and --overwrite exclude each other")
+    config.executor_config.validate()
     _check_output(config)
     from kitbench.doctor import require_renderer
 

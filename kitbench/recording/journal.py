@@ -3,9 +3,9 @@
 Publishing episodes into a LeRobot dataset costs a session clone and a `finalize()` (about 1.5 s), so commits
 stay periodic (`commit_interval`). Between commits every stored episode is also written to `<out>.journal/`: one
 `.npz` file per episode (its frames and metadata, written to a temporary name, fsync'd, then renamed, so a file
-under its final name is always whole) and its MCAP log beside it. After a kill, `--resume` hands the journaled
-episodes back to the writer, in seed order, before recording goes on: a kill -9 at any moment loses at most the
-episode in flight. A commit deletes the journal entries it published.
+under its final name is always whole) and its MCAP log beside it (written the same way, first). After a kill,
+`--resume` hands the journaled episodes back to the writer, in seed order, before recording goes on: a kill -9
+at any moment loses at most the episode in flight. A commit deletes the journal entries it published.
 
 The journal also keeps the recording's settings (`recording.json`), so a run killed before its first commit,
 which leaves no dataset folder at all, can still be resumed and checked against what was asked.
@@ -76,8 +76,8 @@ class EpisodeJournal:
     def _path(self, seed: int, suffix: str) -> Path:
         return self.root / f"seed-{seed:010d}{suffix}"
 
-    def add(self, episode: EpisodeRecord, mcap_path: Path | None = None) -> Path | None:
-        """Make `episode` durable (and move its MCAP log into the journal); returns the log's new path."""
+    def add(self, episode: EpisodeRecord, mcap: bytes | None = None) -> Path | None:
+        """Make `episode` durable, with its MCAP log's bytes beside it; returns the log's path in the journal."""
         keys = list(episode.frames[0]) if episode.frames else []
         arrays = {k: np.stack([f[k] for f in episode.frames]) for k in keys}
         meta = {
@@ -92,15 +92,13 @@ class EpisodeJournal:
         payload: dict[str, Any] = {**arrays, _META: np.array(json.dumps(meta))}
         buffer = io.BytesIO()
         np.savez(buffer, **payload)  # uncompressed: fast, and the file lives only until the next commit
-        moved = None
-        if mcap_path is not None and Path(mcap_path).exists():
-            moved = self._path(episode.seed, ".mcap")
-            with open(mcap_path, "rb") as f:  # the log is complete (closed) before the episode is journaled
-                os.fsync(f.fileno())
-            os.replace(mcap_path, moved)
+        log = None
+        if mcap is not None:
+            log = self._path(episode.seed, ".mcap")
+            _write_durably(log, mcap)  # before the episode: an episode file under its name has its log
         _write_durably(self._path(episode.seed, ".npz"), buffer.getvalue())
         _fsync_dir(self.root)
-        return moved
+        return log
 
     def seeds(self) -> list[int]:
         """Seeds of the journaled episodes, in order (only whole files count: a partial one was in flight)."""

@@ -1,85 +1,33 @@
 """`kitbench record`: run a policy (the expert by default) over consecutive seeds and write a LeRobot dataset
 with one MCAP log per episode in `<out>/mcap/`.
 
-Episodes are produced in seed order whatever the number of worker processes, so a dataset depends only on its
-settings. Everything is validated (`recording.config.validate`) before anything is written.
+Episodes run on the rollout engine (`kitbench.engine`: this process, a local process pool, or Ray actors) and
+reach the one writer here in seed order, so a dataset depends only on its settings, not on where it was recorded.
+Everything is validated (`recording.config.validate`) before anything is written.
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
+import itertools
 import os
 import shutil
 import signal
 import sys
-import tempfile
 import threading
 import time
-from collections import deque
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench.engine import RolloutEngine, make_executor
 from kitbench.recording.config import RecordConfig, load_recipe, make_recording_env, validate
 from kitbench.recording.journal import EpisodeJournal
+from kitbench.recording.work import RecordWork
 
 MCAP_DIR = "mcap"
 ATTEMPTS_PER_EPISODE = 10  # default --max-attempts: this many attempts per episode asked for
 
 __all__ = ["MCAP_DIR", "RecordConfig", "Summary", "load_recipe", "make_recording_env", "record", "validate"]
-
-
-# -- workers ----------------------------------------------------------------------------------------
-_WORKER: dict = {}
-
-
-def _worker_init(config: RecordConfig, mcap_tmp: str | None, in_pool: bool = False) -> None:
-    from kitbench.policies.registry import make_policy
-
-    if in_pool:
-        # Ctrl-C and a terminal hang-up reach the whole process group: the driver handles them (it commits, then
-        # ends the pool). SIGTERM keeps its default: it is how the pool ends its workers.
-        for signum in (signal.SIGINT, signal.SIGHUP):
-            signal.signal(signum, signal.SIG_IGN)
-
-    _WORKER["env"] = make_recording_env(config)
-    _WORKER["policy"] = make_policy(config.policy)
-    _WORKER["mcap_tmp"] = mcap_tmp
-    _WORKER["options"] = {"action_noise": config.action_noise, "settle_steps": config.settle_steps}
-
-
-def _worker_episode(seed: int):
-    from kitbench.recording.rollout import run_episode
-
-    mcap_tmp = _WORKER["mcap_tmp"]
-    path = Path(mcap_tmp) / f"seed-{seed:08d}.mcap" if mcap_tmp else None
-    return run_episode(_WORKER["env"], _WORKER["policy"], seed, path, **_WORKER["options"]), path
-
-
-class _InProcess:
-    """The worker protocol without processes (workers=1): same code path, same results."""
-
-    def __init__(self, config, mcap_tmp):
-        _worker_init(config, mcap_tmp)
-
-    def submit(self, seed):
-        result = _worker_episode(seed)
-        return lambda: result
-
-    def close(self):
-        _WORKER["env"].close()
-
-
-class _Pool:
-    def __init__(self, config, mcap_tmp, workers):
-        self._pool = mp.get_context("spawn").Pool(workers, initializer=_worker_init, initargs=(config, mcap_tmp, True))
-
-    def submit(self, seed):
-        return self._pool.apply_async(_worker_episode, (seed,)).get
-
-    def close(self):
-        self._pool.terminate()
-        self._pool.join()
 
 
 # -- the recording loop -----------------------------------------------------------------------------
@@ -208,20 +156,41 @@ def _commit(writer, journal: EpisodeJournal, published: list[int]) -> None:
 def record(config: RecordConfig, progress: bool = True) -> Summary:
     """Record `config.episodes` episodes (continuing a recording with `resume`); see the module docstring."""
     from kitbench.recording.dataset import DatasetWriter, recover
-    from kitbench.recording.features import dataset_features
 
     validate(config)
     out = config.out
     journal = EpisodeJournal(out)
-    if config.overwrite:
+    committed: list[dict] = []
+    if not config.overwrite:
         recover(out)
-        if out.exists():
-            shutil.rmtree(out)
-        journal.remove()
-    recover(out)
-    committed = DatasetWriter.committed_episodes(out) if out.exists() else []
+        committed = DatasetWriter.committed_episodes(out) if out.exists() else []
+        done_seeds = {e["seed"] for e in committed}
+        journal.discard([s for s in journal.seeds() if s in done_seeds])  # published just before a kill
+    # Workers start before anything is written or replaced: a run whose workers cannot start (a Ray cluster short
+    # of CPUs) leaves everything as it was.
+    workers = ExitStack()  # the rollout engine's workers, stopped however the recording ends
+    engine = None
+    if len(committed) + len(journal.seeds() if not config.overwrite else []) < config.episodes:
+        engine = workers.enter_context(RolloutEngine(make_executor(config.executor_config), RecordWork(config)))
+    try:
+        if config.overwrite:
+            recover(out)
+            if out.exists():
+                shutil.rmtree(out)
+            journal.remove()
+        return _record(config, journal, committed, engine, progress)
+    finally:
+        workers.close()
+
+
+def _record(
+    config: RecordConfig, journal: EpisodeJournal, committed: list[dict], engine: RolloutEngine | None, progress: bool
+) -> Summary:
+    from kitbench.recording.dataset import DatasetWriter
+    from kitbench.recording.features import dataset_features
+
+    out = config.out
     done_seeds = {e["seed"] for e in committed}
-    journal.discard([s for s in journal.seeds() if s in done_seeds])  # published just before a kill
     env = make_recording_env(config)
     env.reset(seed=config.seed)
     features = dataset_features(env)
@@ -234,8 +203,6 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     journal.start(recording)
     summary = Summary(stored=len(committed))
     published: list[int] = []  # seeds in the open session, journaled until it is committed
-    mcap_tmp = None
-    runner = None
     bar = None
     start = time.monotonic()
     try:
@@ -260,50 +227,38 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
             next_seed = max(last + 1, config.seed)
             remaining = config.episodes - summary.stored
             limit = config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
-            if progress and remaining > 0:
-                from kitbench.progress import progress as progress_bar
+            if remaining > 0 and engine is not None:
+                if progress:
+                    from kitbench.progress import progress as progress_bar
 
-                bar = progress_bar(remaining, f"record {config.task}")
-            if remaining > 0:
-                if config.mcap:
-                    mcap_tmp = tempfile.mkdtemp(prefix=f".{out.name}.mcap-", dir=out.parent)
-                runner = (
-                    _InProcess(config, mcap_tmp) if config.workers == 1 else _Pool(config, mcap_tmp, config.workers)
-                )
-            pending: deque = deque()
-            seed = next_seed
-            while summary.stored < config.episodes:
-                if summary.attempted >= limit:
-                    summary.gave_up = True
-                    break
-                while runner is not None and len(pending) < 2 * config.workers:
-                    pending.append((seed, runner.submit(seed)))
-                    seed += 1
-                _, get = pending.popleft()
-                episode, mcap_path = get()
-                summary.attempted += 1
-                summary.successes += int(episode.success)
-                if episode.physics_error is not None:
-                    summary.physics_errors += 1
-                    _say(f"seed {episode.seed}: not stored, the simulation failed: {episode.physics_error}")
-                if episode.physics_error is not None or (config.only_success and not episode.success):
-                    summary.failures_dropped += episode.physics_error is None
-                    if mcap_path is not None:
-                        Path(mcap_path).unlink(missing_ok=True)
-                else:
-                    with stops.storing():
-                        mcap_path = journal.add(episode, mcap_path)
-                        _publish(writer, episode, mcap_path)
-                        published.append(episode.seed)
-                        summary.stored += 1
-                        summary.frames += episode.length
+                    bar = progress_bar(remaining, f"record {config.task}")
+                for _, (episode, mcap) in engine.results(itertools.count(next_seed)):
+                    summary.attempted += 1
+                    summary.successes += int(episode.success)
+                    if episode.physics_error is not None:
+                        summary.physics_errors += 1
+                        _say(f"seed {episode.seed}: not stored, the simulation failed: {episode.physics_error}")
+                    if episode.physics_error is not None or (config.only_success and not episode.success):
+                        summary.failures_dropped += episode.physics_error is None
+                    else:
+                        with stops.storing():
+                            mcap_path = journal.add(episode, mcap)
+                            _publish(writer, episode, mcap_path)
+                            published.append(episode.seed)
+                            summary.stored += 1
+                            summary.frames += episode.length
+                        if bar is not None:
+                            bar.update(1)
+                        if writer.session_age() >= config.commit_interval:
+                            with stops.storing():  # a commit interrupted half-way would leave a session to discard
+                                _commit(writer, journal, published)
                     if bar is not None:
-                        bar.update(1)
-                    if writer.session_age() >= config.commit_interval:
-                        with stops.storing():  # a commit interrupted half-way would leave a session to discard
-                            _commit(writer, journal, published)
-                if bar is not None:
-                    bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
+                        bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
+                    if summary.stored >= config.episodes:
+                        break
+                    if summary.attempted >= limit:
+                        summary.gave_up = True
+                        break
             with stops.storing():
                 _commit(writer, journal, published)
     except KeyboardInterrupt as exc:
@@ -314,12 +269,8 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
         writer.abandon()  # the journal keeps every finished episode for --resume
         raise
     finally:
-        if runner is not None:
-            runner.close()
         if bar is not None:
             bar.close()
-        if mcap_tmp:
-            shutil.rmtree(mcap_tmp, ignore_errors=True)
     if summary.stored >= config.episodes:
         journal.remove()
     summary.seconds = time.monotonic() - start

@@ -1,0 +1,62 @@
+"""The recording's `Work`: a worker builds the recording env and the policy once, then turns seeds into episodes
+(`rollout.run_episode`) with their MCAP logs as bytes, so the episode travels whole to the one writer wherever
+the worker runs (a spawned process, a Ray actor on another machine)."""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from kitbench.engine.work import Work
+from kitbench.recording.config import RecordConfig, make_recording_env
+from kitbench.recording.rollout import EpisodeRecord, run_episode
+
+
+class RecordWork(Work):
+    def __init__(self, config: RecordConfig):
+        self.config = config
+        self._env: Any = None
+        self._policy: Any = None
+        self._scratch: Path | None = None
+
+    def __getstate__(self) -> dict:
+        return {"config": self.config}  # the settings travel, never a built env
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["config"])  # type: ignore[misc]
+
+    def setup(self) -> None:
+        from kitbench.policies.registry import make_policy
+
+        self._env = make_recording_env(self.config)
+        self._policy = make_policy(self.config.policy)
+        if self.config.mcap:
+            self._scratch = Path(tempfile.mkdtemp(prefix="kitbench-mcap-"))
+
+    def run(self, job: int) -> tuple[EpisodeRecord, bytes | None]:
+        """Seed → (episode, its MCAP log's bytes or None)."""
+        seed = job
+        path = self._scratch / f"seed-{seed:010d}.mcap" if self._scratch is not None else None
+        episode = run_episode(
+            self._env,
+            self._policy,
+            seed,
+            path,
+            action_noise=self.config.action_noise,
+            settle_steps=self.config.settle_steps,
+        )
+        if path is None:
+            return episode, None
+        data = path.read_bytes()
+        path.unlink()
+        return episode, data
+
+    def close(self) -> None:
+        if self._env is not None:
+            self._env.close()
+            self._env = None
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
+            self._scratch = None
