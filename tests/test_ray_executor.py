@@ -1,0 +1,231 @@
+"""`--executor ray` on a two-node Ray cluster on 127.0.0.1 (Ray's own cluster utility: a head and a second node,
+one CPU each, started and stopped here): the same dataset and report as a local one-worker run, a worker killed
+with SIGKILL mid-run costs nothing, and bad settings are refused before anything is written."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
+from kitbench.engine.ray_executor import RayExecutor
+from kitbench.errors import KitbenchError
+from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.suite import load_suite
+from kitbench.recording.recorder import RecordConfig, record
+from tests.engine_work import DiesOnceWork, SleepWork
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = ROOT / "eval" / "suites" / "lift_peg_upright_short.toml"
+# Loopback only: Ray replaces 127.0.0.1 by the machine's network address unless told it is a one-machine
+# cluster; the cluster, this process's driver and the CLI's driver below all read this.
+LOOPBACK_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_USAGE_STATS_ENABLED": "0"}
+EPISODES = 6
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    for key, value in LOOPBACK_ENV.items():
+        os.environ[key] = value
+    from ray.cluster_utils import Cluster
+
+    head = {"node_ip_address": "127.0.0.1", "num_cpus": 1, "include_dashboard": False}
+    ray_cluster = Cluster(initialize_head=True, head_node_args=head)
+    ray_cluster.add_node(node_ip_address="127.0.0.1", num_cpus=1)
+    assert ray_cluster.address.startswith("127.0.0.1:")
+    yield ray_cluster
+    ray_cluster.shutdown()
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _same_dataset(a: Path, b: Path) -> None:
+    """Every file byte for byte (MCAP logs and parquet included); stats.json as JSON (lerobot writes its keys in
+    set order, which differs between processes)."""
+    fa, fb = _files(a), _files(b)
+    assert fa.keys() == fb.keys()
+    stats = "meta/stats.json"
+    assert json.loads(fa.pop(stats)) == json.loads(fb.pop(stats))
+    different = [name for name in fa if fa[name] != fb[name]]
+    assert not different, different
+
+
+@pytest.fixture(scope="module")
+def local_dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("local") / "lpu"
+    record(RecordConfig(task="LiftPegUpright-v1", episodes=EPISODES, out=out), progress=False)
+    return out
+
+
+# -- the engine on Ray -------------------------------------------------------------------------------
+def test_ray_workers_run_on_both_nodes_and_results_come_in_order(cluster):
+    executor = make_executor(ExecutorConfig("ray", 2, cluster.address))
+    assert isinstance(executor, RayExecutor)
+    with RolloutEngine(executor, SleepWork()) as engine:
+        got = list(engine.results(range(10)))
+        import ray
+
+        nodes = {n["NodeID"] for n in ray.nodes() if n["Alive"]}
+    assert [job for job, _ in got] == list(range(10))
+    assert [value for _, (value, _) in got] == [n * n for n in range(10)]
+    assert len({pid for _, (_, pid) in got}) == 2
+    assert len(nodes) == 2  # one CPU a node and one CPU an actor: an actor on each node
+
+
+def test_a_worker_that_dies_is_restarted_and_its_job_delivered_once(cluster, tmp_path):
+    with RolloutEngine(make_executor(ExecutorConfig("ray", 2, cluster.address)), DiesOnceWork(str(tmp_path), 4)) as e:
+        values = list(e.map(range(8)))
+    assert values == [n * 10 for n in range(8)]  # every job once, in order
+    runs = [int(line) for line in (tmp_path / "runs").read_text().split()]
+    assert runs.count(4) == 2 and (tmp_path / "died").exists()  # it did die, and its job ran again
+
+
+def test_more_workers_than_the_cluster_has_cpus_is_refused(cluster):
+    with pytest.raises(KitbenchError, match=r"^workers 3 needs 3 CPUs but the Ray cluster has 2;"):
+        RolloutEngine(make_executor(ExecutorConfig("ray", 3, cluster.address)), SleepWork()).__enter__()
+
+
+# -- record and eval ---------------------------------------------------------------------------------
+def test_record_on_ray_writes_the_same_dataset_as_one_local_worker(cluster, local_dataset, tmp_path):
+    out = tmp_path / "lpu"
+    config = RecordConfig(
+        task="LiftPegUpright-v1", episodes=EPISODES, out=out, executor="ray", workers=2, ray_address=cluster.address
+    )
+    summary = record(config, progress=False)
+    assert summary.stored == EPISODES
+    _same_dataset(local_dataset, out)
+
+
+def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
+    suite = load_suite(SHORT).first(EPISODES)
+    local = run_eval(EvalConfig(suite, "random", tmp_path / "local"), progress=False)
+    ray_run = run_eval(
+        EvalConfig(suite, "random", tmp_path / "ray", workers=2, executor="ray", ray_address=cluster.address),
+        progress=False,
+    )
+    assert ray_run["timing"]["executor"] == "ray" and ray_run["timing"]["workers"] == 2
+    for report in (local, ray_run):
+        del report["timing"], report["output"]
+    assert ray_run == local
+
+
+def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, local_dataset, tmp_path):
+    out = tmp_path / "lpu"
+    command = [
+        sys.executable,
+        "-m",
+        "kitbench.cli",
+        "record",
+        "--task",
+        "LiftPegUpright-v1",
+        "--episodes",
+        str(EPISODES),
+        "--out",
+        str(out),
+        "--executor",
+        "ray",
+        "--workers",
+        "2",
+        "--ray-address",
+        cluster.address,
+    ]
+    env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1"}
+    proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    journal = out.with_name(out.name + ".journal")
+    killed = None
+    deadline = time.monotonic() + 240
+    try:
+        while killed is None and proc.poll() is None and time.monotonic() < deadline:
+            # mid-run: some episodes are done (journaled), more are to come
+            if len(list(journal.glob("seed-*.npz"))) >= 1:
+                workers = _actor_pids()
+                if workers:
+                    killed = workers[0]
+                    os.kill(killed, signal.SIGKILL)
+            time.sleep(0.05)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert killed is not None, "no Ray worker to kill before the recording ended"
+    assert proc.returncode == 0, stderr[-3000:]
+    assert f"episodes stored: {EPISODES}" in stdout
+    episodes = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
+    assert [e["seed"] for e in episodes] == list(range(EPISODES))  # every seed exactly once, in order
+    _same_dataset(local_dataset, out)
+
+
+def _actor_pids() -> list[int]:
+    """Processes of the kitbench Ray actors (Ray names them ray::_EpisodeWorker)."""
+    listing = subprocess.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout
+    return [int(line.split()[0]) for line in listing.splitlines() if "ray::_EpisodeWorker" in line]
+
+
+# -- bad input -----------------------------------------------------------------------------------------
+def test_an_unreachable_ray_address_is_refused_before_anything_is_written(tmp_path):
+    out = tmp_path / "lpu"
+    started = time.monotonic()
+    with pytest.raises(KitbenchError) as err:
+        record(
+            RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, executor="ray", ray_address="127.0.0.1:9"),
+            progress=False,
+        )
+    assert str(err.value).startswith("no Ray cluster answers at ray_address '127.0.0.1:9'")
+    assert time.monotonic() - started < 30
+    assert list(tmp_path.iterdir()) == []
+    report = tmp_path / "report"
+    with pytest.raises(KitbenchError, match="no Ray cluster answers"):
+        run_eval(
+            EvalConfig(load_suite(SHORT).first(2), "zero", report, executor="ray", ray_address="127.0.0.1:9"),
+            progress=False,
+        )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ray_not_installed_is_one_line_before_anything_is_written(tmp_path):
+    """Ray hidden from the import system, in a fresh process, as on an install without the extra."""
+    code = (
+        "import sys\n"
+        "sys.modules['ray'] = None  # what `import ray` and find_spec('ray') then see: no Ray\n"
+        "from kitbench.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    out = tmp_path / "lpu"
+    done = subprocess.run(
+        [sys.executable, "-c", code, "record", "--task", "LiftPegUpright-v1", "--episodes", "1"]
+        + ["--out", str(out), "--executor", "ray"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert done.returncode == 2, done.stderr[-2000:]
+    lines = done.stderr.strip().splitlines()
+    assert lines == [
+        (
+            "kitbench record: error: --executor ray needs Ray: pip install 'kitbench[ray]' (or use --executor local; "
+            "valid: local, ray)"
+        )
+    ]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_results_are_numpy_episodes_not_paths(cluster):
+    """What a Ray worker sends back holds the episode and its log, nothing on the worker's disk."""
+    from kitbench.recording.work import RecordWork
+
+    config = RecordConfig(task="LiftPegUpright-v1", episodes=1, out=Path("unused"))
+    with RolloutEngine(make_executor(ExecutorConfig("ray", 1, cluster.address)), RecordWork(config)) as engine:
+        ((seed, (episode, mcap)),) = list(engine.results([3]))
+    assert seed == 3 and episode.seed == 3 and isinstance(mcap, bytes) and mcap.startswith(b"\x89MCAP")
+    assert isinstance(episode.frames[0]["action"], np.ndarray)
