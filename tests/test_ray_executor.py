@@ -60,6 +60,25 @@ def _same_dataset(a: Path, b: Path) -> None:
     assert not different, different
 
 
+def _same_content(a: Path, b: Path) -> None:
+    """The same frames, episode metadata and MCAP logs, however the parquet files are split (each commit of a
+    resumed recording starts new ones)."""
+    import pandas as pd
+
+    def frames(root: Path):
+        return pd.concat([pd.read_parquet(p) for p in sorted((root / "data").rglob("*.parquet"))], ignore_index=True)
+
+    fa, fb = frames(a), frames(b)
+    assert list(fa.columns) == list(fb.columns) and len(fa) == len(fb)
+    for column in fa.columns:
+        np.testing.assert_array_equal(np.stack(fa[column].to_numpy()), np.stack(fb[column].to_numpy()), column)
+    for name in ("meta/kitbench_episodes.jsonl", "meta/kitbench_recording.json"):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    logs = sorted(p.name for p in (a / "mcap").iterdir())
+    assert logs == sorted(p.name for p in (b / "mcap").iterdir())
+    assert all((a / "mcap" / n).read_bytes() == (b / "mcap" / n).read_bytes() for n in logs)
+
+
 @pytest.fixture(scope="module")
 def local_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("local") / "lpu"
@@ -119,9 +138,8 @@ def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
     assert ray_run == local
 
 
-def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, local_dataset, tmp_path):
-    out = tmp_path / "lpu"
-    command = [
+def _record_command(out: Path, address: str, *extra: str) -> list[str]:
+    return [
         sys.executable,
         "-m",
         "kitbench.cli",
@@ -137,10 +155,24 @@ def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, 
         "--workers",
         "2",
         "--ray-address",
-        cluster.address,
+        address,
+        *extra,
     ]
+
+
+def _start(command: list[str]) -> subprocess.Popen:
     env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1"}
-    proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _seeds(out: Path) -> list[int]:
+    jsonl = out / "meta" / "kitbench_episodes.jsonl"
+    return [json.loads(line)["seed"] for line in jsonl.read_text().splitlines()] if jsonl.is_file() else []
+
+
+def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, local_dataset, tmp_path):
+    out = tmp_path / "lpu"
+    proc = _start(_record_command(out, cluster.address))
     journal = out.with_name(out.name + ".journal")
     killed = None
     deadline = time.monotonic() + 240
@@ -160,9 +192,27 @@ def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, 
     assert killed is not None, "no Ray worker to kill before the recording ended"
     assert proc.returncode == 0, stderr[-3000:]
     assert f"episodes stored: {EPISODES}" in stdout
-    episodes = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
-    assert [e["seed"] for e in episodes] == list(range(EPISODES))  # every seed exactly once, in order
+    assert _seeds(out) == list(range(EPISODES))  # every seed exactly once, in order
     _same_dataset(local_dataset, out)
+
+
+def test_resume_after_the_driver_is_killed_continues_from_the_last_committed_episode(cluster, local_dataset, tmp_path):
+    out = tmp_path / "lpu"
+    proc = _start(_record_command(out, cluster.address, "--commit-interval", "0"))
+    deadline = time.monotonic() + 240
+    try:
+        while proc.poll() is None and len(_seeds(out)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.communicate()
+    committed = _seeds(out)
+    assert 2 <= len(committed) < EPISODES and committed == list(range(len(committed)))
+    resumed = _start(_record_command(out, cluster.address, "--resume"))
+    _, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, stderr[-3000:]
+    assert _seeds(out) == list(range(EPISODES))
+    _same_content(local_dataset, out)
 
 
 def _actor_pids() -> list[int]:
