@@ -116,8 +116,22 @@ def check_video_decoding() -> Check:
     return Check("video", n == 5, f"ffmpeg + torchcodec decode ok ({n} frames)", fix)
 
 
+def check_ray() -> Check:
+    """Ray is optional (`--executor ray`): its absence is reported, never a failure. Says which cluster `auto`
+    would join."""
+    try:
+        version = md.version("ray")
+    except md.PackageNotFoundError:
+        return Check("ray", True, "not installed (optional: --executor ray needs pip install 'kitbench[ray]')")
+    from kitbench.engine.ray_executor import running_cluster
+
+    cluster = running_cluster()
+    where = f"joins the cluster at {cluster}" if cluster else "no cluster running: starts a local one on loopback"
+    return Check("ray", True, f"{version}; --executor ray --ray-address auto {where}")
+
+
 def run_doctor(stream=sys.stdout) -> int:
-    checks = [*check_versions(), check_vulkan(), check_video_decoding()]
+    checks = [*check_versions(), check_vulkan(), check_video_decoding(), check_ray()]
     width = max(len(c.name) for c in checks)
     for c in checks:
         print(f"{'ok ' if c.ok else 'BAD'} {c.name:<{width}}  {c.detail}", file=stream)
