@@ -79,6 +79,19 @@ def _record(args) -> int:
     return summary.exit_code
 
 
+def _merge(args) -> int:
+    from kitbench.recording.merge import merge
+
+    try:
+        summary = merge([Path(s) for s in args.shards], Path(args.out), overwrite=args.overwrite, repo_id=args.repo_id)
+    except KitbenchError as exc:
+        print(f"kitbench merge: error: {exc}", file=sys.stderr)
+        return 2
+    for line in summary.lines():
+        print(line)
+    return 0
+
+
 def _slug(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in text).strip("_.")[-80:] or "policy"
 
@@ -225,6 +238,14 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"reward stored in next.reward: {', '.join(REWARD_MODES)} (default dense)",
     )
     rec.set_defaults(func=_record)
+    mrg = sub.add_parser(
+        "merge", help="merge recordings of disjoint seed ranges (shards) into one dataset, in seed order"
+    )
+    mrg.add_argument("shards", nargs="+", help="dataset folders of finished recordings with the same settings")
+    mrg.add_argument("--out", required=True, help="the merged dataset's folder (new, or replaced with --overwrite)")
+    mrg.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    mrg.add_argument("--repo-id", dest="repo_id", help="repo id of the merged dataset (default: the shards')")
+    mrg.set_defaults(func=_merge)
     ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")
     ev.add_argument(
         "--task", help=f"one of {', '.join(TASKS)} (or its gym id {GYM_NAMESPACE}/<task>; implied by --suite)"

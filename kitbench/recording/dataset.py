@@ -73,7 +73,7 @@ def _clone(src: Path, dst: Path) -> None:
 AV_LOG_ERROR = 16  # libavutil/log.h
 
 
-def _quiet_encoders() -> None:
+def quiet_video_logs() -> None:
     """The video encoder's per-file statistics and the per-episode table-mapping bars are noise next to our
     own progress bar; errors still show.
 
@@ -116,7 +116,7 @@ class DatasetWriter:
         self._session: Any = None  # LeRobotDataset being written in the session folder (lerobot is untyped)
         self._pending: list[dict] = []  # kitbench metadata of episodes in the open session
         self._session_started = 0.0
-        _quiet_encoders()
+        quiet_video_logs()
 
     # -- state of the published dataset ------------------------------------------------------------
     @staticmethod

@@ -1,0 +1,158 @@
+"""`kitbench merge`: one dataset from recordings of disjoint seed ranges (shards), through LeRobot's own
+aggregation (`lerobot.datasets.aggregate`), with kitbench's per-episode metadata and MCAP logs carried along.
+
+Shards are how recording scales past one writer: several `kitbench record` runs (on several machines, each with
+its own workers) record consecutive seed ranges, and the merge concatenates them. The result is the recording
+one run over all the seeds would have made: the same frames, indices, episode metadata and MCAP logs (tested
+frame for frame, video frames decoded). Shards are merged in seed order whatever order they are given in; each
+must be a finished recording with the same settings (all but the first seed). The merged dataset is built in a
+temporary folder beside `out` and renamed into place, so a failure leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from kitbench.errors import KitbenchError
+from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.recording.config import check_repo_id
+from kitbench.recording.journal import journal_root
+
+MCAP_DIR = "mcap"
+MERGING_SUFFIX = ".merging"
+# Settings a recording stores that may differ between shards: where it started, and how it was named.
+PER_SHARD = ("seed", "repo_id")
+
+
+@dataclass
+class Shard:
+    root: Path
+    settings: dict
+    episodes: list[dict]
+
+    @property
+    def seeds(self) -> list[int]:
+        return [e["seed"] for e in self.episodes]
+
+
+def _read_shard(root: Path) -> Shard:
+    root = Path(root)
+    if not root.is_dir():
+        raise KitbenchError(f"shard {root} does not exist (give the folders of finished kitbench recordings)")
+    if journal_root(root).is_dir() or root.with_name(root.name + ".session").exists():
+        raise KitbenchError(f"shard {root} is an unfinished recording; finish it with kitbench record --resume")
+    settings_path = root / RECORDING_FILE
+    if not settings_path.is_file():
+        raise KitbenchError(f"shard {root} is not a kitbench recording ({RECORDING_FILE} missing)")
+    settings = json.loads(settings_path.read_text())
+    lines = (root / EPISODES_FILE).read_text().splitlines() if (root / EPISODES_FILE).is_file() else []
+    episodes = [json.loads(line) for line in lines if line.strip()]
+    if not episodes:
+        raise KitbenchError(f"shard {root} has no episodes")
+    return Shard(root, settings, episodes)
+
+
+def _check_shards(shards: list[Shard]) -> None:
+    first = shards[0]
+    for shard in shards[1:]:
+        keys = sorted((set(first.settings) | set(shard.settings)) - set(PER_SHARD))
+        for key in keys:
+            a, b = first.settings.get(key), shard.settings.get(key)
+            if a != b:
+                raise KitbenchError(
+                    f"shards {first.root} and {shard.root} were recorded with different {key} ({a!r} and {b!r}); "
+                    "only the seed may differ"
+                )
+    owner: dict[int, Path] = {}
+    for shard in shards:
+        for seed in shard.seeds:
+            if seed in owner:
+                raise KitbenchError(f"seed {seed} is in both {owner[seed]} and {shard.root}; shards must not overlap")
+            owner[seed] = shard.root
+
+
+def _check_out(out: Path, shards: list[Shard], overwrite: bool) -> None:
+    resolved = out.resolve()
+    for shard in shards:
+        root = shard.root.resolve()
+        if resolved == root or root in resolved.parents or resolved in root.parents:
+            raise KitbenchError(f"--out {out} overlaps shard {shard.root}; give a new folder")
+    if (out.exists() or out.is_symlink()) and not overwrite:
+        raise KitbenchError(f"output folder {out} exists; pass --overwrite to replace it")
+    if out.exists() and not out.is_dir():
+        raise KitbenchError(f"output {out} is a file; --out must be a folder")
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(src, dst)  # the shards' logs are never rewritten: a link is a copy that costs nothing
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+@dataclass
+class MergeSummary:
+    out: Path
+    shards: int
+    episodes: int
+    frames: int
+
+    def lines(self) -> list[str]:
+        return [f"dataset: {self.out}", f"merged {self.shards} shards: {self.episodes} episodes, {self.frames} frames"]
+
+
+def merge(shard_roots: list[Path], out: Path, overwrite: bool = False, repo_id: str | None = None) -> MergeSummary:
+    """Merge finished recordings `shard_roots` into a new dataset at `out` (see the module docstring)."""
+    from lerobot.datasets.aggregate import aggregate_datasets
+
+    from kitbench.recording.dataset import quiet_video_logs
+
+    if len(shard_roots) < 2:
+        raise KitbenchError(f"merge needs at least two recordings, got {len(shard_roots)}")
+    if len({Path(r).resolve() for r in shard_roots}) != len(shard_roots):
+        raise KitbenchError("a shard is given twice")
+    if repo_id is not None:
+        check_repo_id(repo_id)
+    out = Path(out)
+    shards = sorted((_read_shard(r) for r in shard_roots), key=lambda s: min(s.seeds))
+    _check_shards(shards)
+    _check_out(out, shards, overwrite)
+    settings = dict(shards[0].settings)
+    repo_id = repo_id or settings.get("repo_id") or f"kitbench/{settings['task']}"
+    settings["repo_id"] = repo_id
+    quiet_video_logs()
+    staging = out.with_name(out.name + MERGING_SUFFIX)
+    if staging.exists():
+        shutil.rmtree(staging)  # what a killed merge left
+    try:
+        aggregate_datasets(
+            [s.settings.get("repo_id", repo_id) for s in shards],
+            repo_id,
+            roots=[s.root for s in shards],
+            aggr_root=staging,
+        )
+        episodes, offset = [], 0
+        for shard in shards:
+            for episode in shard.episodes:
+                index = episode["episode_index"]
+                log = shard.root / MCAP_DIR / f"episode_{index:06d}.mcap"
+                if log.is_file():
+                    _link_or_copy(log, staging / MCAP_DIR / f"episode_{offset + index:06d}.mcap")
+                episodes.append({**episode, "episode_index": offset + index})
+            offset += len(shard.episodes)
+        (staging / EPISODES_FILE).write_text("".join(json.dumps(e) + "\n" for e in episodes))
+        (staging / RECORDING_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+        retired = out.with_name(out.name + ".retired")
+        if out.exists():
+            os.replace(out, retired)  # the old dataset stays whole until the new one is in place
+        os.replace(staging, out)
+        shutil.rmtree(retired, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return MergeSummary(out, len(shards), len(episodes), sum(e["length"] for e in episodes))
