@@ -9,7 +9,7 @@ finished work waits in memory (rgb episodes are megabytes each).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from kitbench.engine.executor import Executor
@@ -41,10 +41,12 @@ class RolloutEngine:
             self._started = False
             self.executor.close()
 
-    def results(self, jobs: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
+    def results(self, jobs: Iterable[Any], needed: Callable[[], int] | None = None) -> Iterator[tuple[Any, Any]]:
         """(job, result) for each job, in the jobs' order. `jobs` is read lazily, so it may be endless (a recording
         that keeps only successes reads seeds until it has enough); the consumer stops by leaving the loop, and
-        jobs still in flight then are abandoned."""
+        jobs still in flight then are abandoned. `needed()`, asked before each submission, bounds the jobs in
+        flight: a recording that still needs k episodes runs at most k, so it ends with no episode computed in
+        vain and no worker stopped in the middle of one."""
         if not self._started:
             raise RuntimeError("RolloutEngine.results() outside its `with` block")
         window = JOBS_IN_FLIGHT_PER_WORKER * self.executor.workers
@@ -52,7 +54,7 @@ class RolloutEngine:
         pending: deque[tuple[Any, Any]] = deque()
         exhausted = False
         while True:
-            while not exhausted and len(pending) < window:
+            while not exhausted and len(pending) < (window if needed is None else min(window, needed())):
                 job = next(source, _END)
                 if job is _END:
                     exhausted = True

@@ -100,8 +100,8 @@ def _connect(address: str, workers: int) -> bool:
     if ray.is_initialized():  # the caller's own Ray session (a notebook, a driver script): use it, leave it
         return False
     options: dict[str, Any] = {"logging_level": "ERROR", "log_to_driver": False}
-    if target is None:
-        ray.init(num_cpus=workers, include_dashboard=False, **options)
+    if target is None:  # "local" said explicitly: otherwise Ray joins the cluster RAY_ADDRESS or `ray start` names
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, **options)
     else:
         ray.init(address=target, **options)
     return True

@@ -47,9 +47,12 @@ def _stamp(ns: int) -> Timestamp:
 class EpisodeMcap:
     """Writes one episode; use as a context manager or call `close()`."""
 
-    def __init__(self, path: Path, cameras: tuple[str, ...] = (), jpeg_quality: int = 90):
-        self.path = Path(path)
-        stream = open(self.path, "wb")  # noqa: SIM115  (closed by close(), which the context manager calls)
+    def __init__(self, target: Path | BinaryIO, cameras: tuple[str, ...] = (), jpeg_quality: int = 90):
+        """`target`: a file path (created, and closed by `close()`), or a binary stream the caller owns (left open,
+        e.g. a BytesIO whose bytes travel to the dataset writer)."""
+        self._owns_file = isinstance(target, str | Path)
+        # closed by close(), which the context manager calls
+        stream = open(target, "wb") if isinstance(target, str | Path) else target  # noqa: SIM115
         self._file: BinaryIO | None = stream
         self._writer = Writer(stream, compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="kitbench")
@@ -113,7 +116,8 @@ class EpisodeMcap:
     def close(self) -> None:
         if self._file is not None:
             self._writer.finish()
-            self._file.close()
+            if self._owns_file:
+                self._file.close()
             self._file = None
 
     def __enter__(self):

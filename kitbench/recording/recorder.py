@@ -170,21 +170,29 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     # of CPUs) leaves everything as it was.
     workers = ExitStack()  # the rollout engine's workers, stopped however the recording ends
     engine = None
-    if len(committed) + len(journal.seeds() if not config.overwrite else []) < config.episodes:
-        engine = workers.enter_context(RolloutEngine(make_executor(config.executor_config), RecordWork(config)))
+    started = time.monotonic()  # the speed printed counts the workers' start-up, as a user waits for it
+    to_record = config.episodes - len(committed) - (len(journal.seeds()) if not config.overwrite else 0)
+    if to_record > 0:
+        executor = make_executor(config.executor_config, jobs=to_record)
+        engine = workers.enter_context(RolloutEngine(executor, RecordWork(config)))
     try:
         if config.overwrite:
             recover(out)
             if out.exists():
                 shutil.rmtree(out)
             journal.remove()
-        return _record(config, journal, committed, engine, progress)
+        return _record(config, journal, committed, engine, progress, started)
     finally:
         workers.close()
 
 
 def _record(
-    config: RecordConfig, journal: EpisodeJournal, committed: list[dict], engine: RolloutEngine | None, progress: bool
+    config: RecordConfig,
+    journal: EpisodeJournal,
+    committed: list[dict],
+    engine: RolloutEngine | None,
+    progress: bool,
+    start: float,
 ) -> Summary:
     from kitbench.recording.dataset import DatasetWriter
     from kitbench.recording.features import dataset_features
@@ -204,7 +212,6 @@ def _record(
     summary = Summary(stored=len(committed))
     published: list[int] = []  # seeds in the open session, journaled until it is committed
     bar = None
-    start = time.monotonic()
     try:
         with _StopSignals() as stops:
             # episodes a killed run had finished but not committed: publish them first, in seed order
@@ -232,7 +239,12 @@ def _record(
                     from kitbench.progress import progress as progress_bar
 
                     bar = progress_bar(remaining, f"record {config.task}")
-                for _, (episode, mcap) in engine.results(itertools.count(next_seed)):
+
+                # in flight: never more episodes than are still needed or may still be attempted
+                def needed() -> int:
+                    return min(config.episodes - summary.stored, limit - summary.attempted)
+
+                for _, (episode, mcap) in engine.results(itertools.count(next_seed), needed):
                     summary.attempted += 1
                     summary.successes += int(episode.success)
                     if episode.physics_error is not None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -69,14 +70,20 @@ def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, images) -> None:
 
 
 def run_episode(
-    env, policy, seed: int, mcap_path: Path | None = None, action_noise: float = 0.0, settle_steps: int = 0
+    env,
+    policy,
+    seed: int,
+    mcap: Path | BinaryIO | None = None,
+    action_noise: float = 0.0,
+    settle_steps: int = 0,
 ) -> EpisodeRecord:
+    """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given."""
     u = env.unwrapped
     obs, info = env.reset(seed=seed)
     policy.reset(env, seed, obs, info)
     noise = ActionNoise.for_env(env, action_noise, seed) if action_noise > 0 else None
     record = EpisodeRecord(seed=seed, task=u.task_description(), config=task_config(u))
-    log = EpisodeMcap(mcap_path, u.camera_names) if mcap_path is not None else None
+    log = EpisodeMcap(mcap, u.camera_names) if mcap is not None else None
     joint_names = [j.name for j in u.robot.articulation.active_joints]
     dt_ns = round(1e9 * u.control_timestep)
     try:

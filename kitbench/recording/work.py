@@ -4,9 +4,7 @@ the worker runs (a spawned process, a Ray actor on another machine)."""
 
 from __future__ import annotations
 
-import shutil
-import tempfile
-from pathlib import Path
+import io
 from typing import Any
 
 from kitbench.engine.work import Work
@@ -19,7 +17,6 @@ class RecordWork(Work):
         self.config = config
         self._env: Any = None
         self._policy: Any = None
-        self._scratch: Path | None = None
 
     def __getstate__(self) -> dict:
         return {"config": self.config}  # the settings travel, never a built env
@@ -32,31 +29,21 @@ class RecordWork(Work):
 
         self._env = make_recording_env(self.config)
         self._policy = make_policy(self.config.policy)
-        if self.config.mcap:
-            self._scratch = Path(tempfile.mkdtemp(prefix="kitbench-mcap-"))
 
     def run(self, job: int) -> tuple[EpisodeRecord, bytes | None]:
         """Seed → (episode, its MCAP log's bytes or None)."""
-        seed = job
-        path = self._scratch / f"seed-{seed:010d}.mcap" if self._scratch is not None else None
+        log = io.BytesIO() if self.config.mcap else None  # in memory: a killed worker leaves no file behind
         episode = run_episode(
             self._env,
             self._policy,
-            seed,
-            path,
+            job,
+            log,
             action_noise=self.config.action_noise,
             settle_steps=self.config.settle_steps,
         )
-        if path is None:
-            return episode, None
-        data = path.read_bytes()
-        path.unlink()
-        return episode, data
+        return episode, None if log is None else log.getvalue()
 
     def close(self) -> None:
         if self._env is not None:
             self._env.close()
             self._env = None
-        if self._scratch is not None:
-            shutil.rmtree(self._scratch, ignore_errors=True)
-            self._scratch = None
