@@ -154,6 +154,30 @@ def _eval(args) -> int:
     return 0
 
 
+def _compare(args) -> int:
+    from kitbench.evaluation.compare import compare_reports
+
+    try:
+        comparison = compare_reports(
+            args.a,
+            args.b,
+            alpha=args.alpha,
+            test=args.test,
+            allow_different_suites=args.allow_different_suites,
+        )
+        if args.json:
+            comparison.write_json(args.json)
+    except KitbenchError as exc:
+        print(f"kitbench compare: error: {exc}", file=sys.stderr)
+        return 2
+    for warning in comparison.warnings:
+        print(f"kitbench compare: warning: {warning}", file=sys.stderr)
+    for line in comparison.lines():
+        print(line)
+    # a gate for CI: only a significant drop on the headline (success) fails it; the verdict line says why
+    return 1 if args.fail_if_worse and comparison.verdict == "worse" else 0
+
+
 def _executor_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--executor",
@@ -277,6 +301,33 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("--reward-mode", dest="reward_mode", help="reward summed into returns (default dense)")
     ev.set_defaults(func=_eval)
+    cmp = sub.add_parser(
+        "compare",
+        help="compare two eval reports of one suite: success difference with its 95%% CI and p-value, and a verdict",
+    )
+    cmp.add_argument("a", metavar="A", help="the baseline: a report.json (or its report folder)")
+    cmp.add_argument("b", metavar="B", help="the candidate: a report.json (or its report folder)")
+    cmp.add_argument("--alpha", default="0.05", help="significance level, between 0 and 1 (default 0.05)")
+    cmp.add_argument(
+        "--test",
+        default="fisher",
+        help="unpaired test: fisher (default) or barnard (more powerful, slower); when both reports scored the "
+        "same seeds the headline is McNemar's paired test",
+    )
+    cmp.add_argument("--json", help="also write the comparison to this JSON file")
+    cmp.add_argument(
+        "--allow-different-suites",
+        dest="allow_different_suites",
+        action="store_true",
+        help="compare reports whose task, seeds or modes differ (with a warning) instead of refusing",
+    )
+    cmp.add_argument(
+        "--fail-if-worse",
+        dest="fail_if_worse",
+        action="store_true",
+        help="exit 1 when B's success rate is significantly lower than A's (default: exit 0 whatever the verdict)",
+    )
+    cmp.set_defaults(func=_compare)
     return parser
 
 
