@@ -61,6 +61,7 @@ def _record(args) -> int:
         "reward_mode": args.reward_mode,
         "executor": args.executor,
         "ray_address": args.ray_address,
+        "shard_episodes": args.shard_episodes,
     }
     try:
         if args.recipe:
@@ -260,6 +261,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--reward-mode",
         dest="reward_mode",
         help=f"reward stored in next.reward: {', '.join(REWARD_MODES)} (default dense)",
+    )
+    rec.add_argument(
+        "--shard-episodes",
+        dest="shard_episodes",
+        type=int,
+        help="episodes per shard: each worker writes whole shards, merged at the end, so writing scales with the "
+        "workers (default 0: one writer; see docs/scale-out.md)",
     )
     rec.set_defaults(func=_record)
     mrg = sub.add_parser(

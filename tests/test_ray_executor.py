@@ -125,6 +125,21 @@ def test_record_on_ray_writes_the_same_dataset_as_one_local_worker(cluster, loca
     _same_dataset(local_dataset, out)
 
 
+def test_sharded_recording_on_ray_writes_the_same_dataset_as_one_local_writer(cluster, local_dataset, tmp_path):
+    out = tmp_path / "lpu"
+    config = RecordConfig(
+        task="LiftPegUpright-v1",
+        episodes=EPISODES,
+        out=out,
+        executor="ray",
+        workers=2,
+        ray_address=cluster.address,
+        shard_episodes=2,
+    )
+    assert record(config, progress=False).stored == EPISODES
+    _same_content(local_dataset, out)
+
+
 def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
     suite = load_suite(SHORT).first(EPISODES)
     local = run_eval(EvalConfig(suite, "random", tmp_path / "local"), progress=False)

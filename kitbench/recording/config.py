@@ -50,6 +50,10 @@ class RecordConfig:
     # Not part of the identity: a dataset is the same whichever ran it, so a resume may change them.
     executor: str = "local"
     ray_address: str = "auto"
+    # Episodes per shard (recording/shards.py): each worker records whole shards into datasets of its own, merged
+    # at the end, so writing scales with the workers; 0: every episode goes to the one writer here. Not part of
+    # the identity either: the merged dataset is the one a single writer makes.
+    shard_episodes: int = 0
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
@@ -133,6 +137,15 @@ def validate(config: RecordConfig) -> None:
     if config.resume and config.overwrite:
         raise KitbenchError("--resume and --overwrite exclude each other")
     config.executor_config.validate()
+    if not (isinstance(config.shard_episodes, int) and not isinstance(config.shard_episodes, bool)) or (
+        config.shard_episodes < 0
+    ):
+        raise KitbenchError(f"shard_episodes must be an integer >= 0, got {config.shard_episodes!r}")
+    if config.shard_episodes and config.only_success:
+        raise KitbenchError(
+            "shard_episodes and only_success exclude each other: which seeds a shard keeps would depend on the "
+            "shard size; record all episodes, or record without shards"
+        )
     _check_output(config)
     from kitbench.doctor import require_renderer
 
@@ -222,6 +235,10 @@ def _check_output(config: RecordConfig) -> None:
             )
     if not config.resume:
         return
+    from kitbench.recording.journal import SHARDS_DIR, journal_root
+
+    if (journal_root(out) / SHARDS_DIR).is_dir() and not config.shard_episodes:
+        raise KitbenchError(f"{out} is an unfinished sharded recording; resume it with --shard-episodes N")
     if not out.exists() and not leftovers:
         raise KitbenchError(f"nothing to resume at {out} (drop --resume to start one)")
     if out.exists() and not (out / RECORDING_FILE).is_file():

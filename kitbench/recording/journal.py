@@ -26,6 +26,7 @@ from kitbench.recording.rollout import EpisodeRecord
 
 JOURNAL_SUFFIX = ".journal"
 SETTINGS_FILE = "recording.json"
+SHARDS_DIR = "shards"  # whole shards of a sharded recording (recording/shards.py), merged at its end
 _META = "__meta__"
 
 

@@ -39,11 +39,13 @@ class Shard:
         return [e["seed"] for e in self.episodes]
 
 
-def _read_shard(root: Path) -> Shard:
+def _read_shard(root: Path, finished: bool) -> Shard:
+    """The recording at `root`; `finished`: refuse one a recording is still adding to (a journal or session beside
+    it), which a merge would copy half of."""
     root = Path(root)
     if not root.is_dir():
         raise KitbenchError(f"shard {root} does not exist (give the folders of finished kitbench recordings)")
-    if journal_root(root).is_dir() or root.with_name(root.name + ".session").exists():
+    if finished and (journal_root(root).is_dir() or root.with_name(root.name + ".session").exists()):
         raise KitbenchError(f"shard {root} is an unfinished recording; finish it with kitbench record --resume")
     settings_path = root / RECORDING_FILE
     if not settings_path.is_file():
@@ -106,8 +108,11 @@ class MergeSummary:
         return [f"dataset: {self.out}", f"merged {self.shards} shards: {self.episodes} episodes, {self.frames} frames"]
 
 
-def merge(shard_roots: list[Path], out: Path, overwrite: bool = False, repo_id: str | None = None) -> MergeSummary:
-    """Merge finished recordings `shard_roots` into a new dataset at `out` (see the module docstring)."""
+def merge(
+    shard_roots: list[Path], out: Path, overwrite: bool = False, repo_id: str | None = None, finished: bool = True
+) -> MergeSummary:
+    """Merge finished recordings `shard_roots` into a new dataset at `out` (see the module docstring).
+    `finished=False` is for the sharded recorder, which merges the dataset it is itself extending."""
     from lerobot.datasets.aggregate import aggregate_datasets
 
     from kitbench.recording.dataset import quiet_video_logs
@@ -119,7 +124,7 @@ def merge(shard_roots: list[Path], out: Path, overwrite: bool = False, repo_id: 
     if repo_id is not None:
         check_repo_id(repo_id)
     out = Path(out)
-    shards = sorted((_read_shard(r) for r in shard_roots), key=lambda s: min(s.seeds))
+    shards = sorted((_read_shard(r, finished) for r in shard_roots), key=lambda s: min(s.seeds))
     _check_shards(shards)
     _check_out(out, shards, overwrite)
     settings = dict(shards[0].settings)

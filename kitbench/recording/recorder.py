@@ -13,15 +13,15 @@ import os
 import shutil
 import signal
 import sys
-import threading
 import time
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.recording.config import RecordConfig, load_recipe, make_recording_env, validate
 from kitbench.recording.journal import EpisodeJournal
+from kitbench.recording.stops import Stopped, StopSignals
 from kitbench.recording.work import RecordWork
 
 MCAP_DIR = "mcap"
@@ -87,52 +87,6 @@ def _folder_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.exists() else 0
 
 
-class _Stopped(KeyboardInterrupt):
-    """Ctrl-C, SIGTERM or SIGHUP: commit what is stored, say so, exit non-zero."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-class _StopSignals:
-    """Turn SIGINT, SIGTERM and SIGHUP into `_Stopped` while recording (main thread only; restored afterwards).
-
-    Inside `storing()` a signal is held until the episode being stored is in the journal and the session: raised
-    in the middle, it would lose an episode that had finished."""
-
-    def __init__(self):
-        self._old: dict = {}
-        self._storing = False
-        self._held: int | None = None
-
-    def _handle(self, signum, frame):
-        if self._storing:
-            self._held = signum
-        else:
-            raise _Stopped(signum)
-
-    def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
-            for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-                self._old[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def __exit__(self, *exc):
-        for signum, handler in self._old.items():
-            signal.signal(signum, handler)
-
-    @contextmanager
-    def storing(self):
-        self._storing = True
-        try:
-            yield
-        finally:
-            self._storing = False
-        if self._held is not None:
-            raise _Stopped(self._held)
-
-
 def _say(message: str) -> None:
     print(f"kitbench record: {message}", file=sys.stderr, flush=True)
 
@@ -158,6 +112,10 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     from kitbench.recording.dataset import DatasetWriter, recover
 
     validate(config)
+    if config.shard_episodes:
+        from kitbench.recording.shards import record_sharded
+
+        return record_sharded(config, progress)
     out = config.out
     journal = EpisodeJournal(out)
     committed: list[dict] = []
@@ -213,7 +171,7 @@ def _record(
     published: list[int] = []  # seeds in the open session, journaled until it is committed
     bar = None
     try:
-        with _StopSignals() as stops:
+        with StopSignals() as stops:
             # episodes a killed run had finished but not committed: publish them first, in seed order
             replayed: list[int] = []
             for seed in journal.seeds():
@@ -276,7 +234,7 @@ def _record(
     except KeyboardInterrupt as exc:
         _commit(writer, journal, published)
         summary.interrupted = True
-        summary.signal = exc.signum if isinstance(exc, _Stopped) else signal.SIGINT
+        summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT
     except BaseException:
         writer.abandon()  # the journal keeps every finished episode for --resume
         raise

@@ -1,0 +1,235 @@
+"""Sharded recording (`kitbench record --shard-episodes N`): each worker records whole shards, N consecutive seeds
+into a LeRobot dataset of its own, and the driver merges the shards with LeRobot's aggregation at the end.
+
+Why: one writer commits at most ~350 state or ~120 rgb episodes/min on this machine (`bench/record_throughput.py`:
+lerobot's `add_episode` costs ~170 ms a state episode, ~480 ms an rgb one with its video), which two workers
+already fill; and an rgb episode travels to it as 2.1 MiB of raw frames. A shard is encoded where it is recorded
+and travels as its finished files (0.15 MiB an rgb episode), so the writers scale with the workers and the driver
+only stores shards and merges them (`merge.py`, through `lerobot.datasets.aggregate`).
+
+What stays the same: the merged dataset is the recording one writer makes of the same seeds (frames, indices,
+episode metadata, MCAP logs; tested), whatever the executor and the shard size. Shards are journaled (kept whole
+in `<out>.journal/shards/`) as they arrive, so a kill loses at most the shards in flight and `--resume` continues
+after the last shard stored. A seed whose simulation fails is dropped and more seeds are recorded, as without
+shards. Not available with `only_success`: which seeds a shard keeps would then depend on the shard size.
+The dataset appears when every shard is in (merging takes seconds), not at commits along the way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import os
+import shutil
+import signal
+import tarfile
+import tempfile
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+
+from kitbench.engine import RolloutEngine, Work, make_executor
+from kitbench.recording.config import RecordConfig
+from kitbench.recording.journal import SHARDS_DIR, EpisodeJournal
+from kitbench.recording.stops import Stopped, StopSignals
+
+SHARD_PREFIX = "shard-"
+# A shard is one session: committed once, at its end (a commit costs a session clone and a finalize).
+SHARD_COMMIT_INTERVAL = 1e9
+
+
+@dataclass
+class ShardResult:
+    first_seed: int
+    seeds: int  # seeds attempted: first_seed .. first_seed + seeds - 1
+    stored: int
+    successes: int
+    physics_errors: int
+    frames: int
+    data: bytes  # the shard's dataset folder as an uncompressed tar (its parquet and video are compressed already)
+
+
+def _tar(folder: Path) -> bytes:
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w") as tar:
+        tar.add(folder, arcname=".")
+    return buffer.getvalue()
+
+
+class ShardWork(Work):
+    """Records the shard (first seed, seed count) with the recorder itself, in the worker's process."""
+
+    def __init__(self, config: RecordConfig):
+        self.config = config
+
+    def setup(self) -> None:
+        """Nothing shared: each shard is a recording of its own (it builds its env, seconds a shard)."""
+
+    def run(self, job: tuple[int, int]) -> ShardResult:
+        from kitbench.recording.recorder import record
+
+        first, count = job
+        with tempfile.TemporaryDirectory(prefix="kitbench-shard-") as scratch:
+            shard = dataclasses.replace(
+                self.config,
+                seed=first,
+                episodes=count,
+                out=Path(scratch) / "shard",
+                max_attempts=count,  # exactly its seeds: a failed simulation leaves the shard one short
+                workers=1,
+                executor="local",
+                ray_address="auto",
+                resume=False,
+                overwrite=False,
+                shard_episodes=0,
+                commit_interval=SHARD_COMMIT_INTERVAL,
+            )
+            summary = record(shard, progress=False)
+            data = _tar(shard.out) if summary.stored else b""
+        return ShardResult(
+            first, count, summary.stored, summary.successes, summary.physics_errors, summary.frames, data
+        )
+
+
+def _shard_folder(journal: EpisodeJournal) -> Path:
+    return journal.root / SHARDS_DIR
+
+
+def journaled_shards(journal: EpisodeJournal) -> list[Path]:
+    """The whole shards a recording has stored, in seed order (a partial one was in flight)."""
+    folder = _shard_folder(journal)
+    return sorted(folder.glob(f"{SHARD_PREFIX}*")) if folder.is_dir() else []
+
+
+def _store_shard(journal: EpisodeJournal, result: ShardResult) -> Path:
+    """Unpack a shard durably under the journal: whole under its final name, or not there at all."""
+    folder = _shard_folder(journal)
+    folder.mkdir(parents=True, exist_ok=True)
+    final = folder / f"{SHARD_PREFIX}{result.first_seed:010d}"
+    partial = folder / f".partial-{result.first_seed:010d}"
+    shutil.rmtree(partial, ignore_errors=True)
+    with tarfile.open(fileobj=io.BytesIO(result.data), mode="r") as tar:
+        tar.extractall(partial, filter="data")
+    for path in partial.rglob("*"):
+        if path.is_file():
+            with open(path, "rb") as f:
+                os.fsync(f.fileno())
+    os.replace(partial, final)
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    return final
+
+
+def _episodes(root: Path) -> list[dict]:
+    from kitbench.recording.dataset import DatasetWriter
+
+    return DatasetWriter.committed_episodes(root)
+
+
+def record_sharded(config: RecordConfig, progress: bool = True):
+    """`record` with `config.shard_episodes` > 0 (validated by the caller); returns the recorder's Summary."""
+    from kitbench.recording.dataset import recover
+    from kitbench.recording.recorder import ATTEMPTS_PER_EPISODE, Summary
+
+    out = config.out
+    journal = EpisodeJournal(out)
+    done: list[Path] = []  # recordings to merge: the published dataset (a resumed one), then the shards
+    if not config.overwrite:
+        recover(out)
+        done = ([out] if out.exists() else []) + journaled_shards(journal)
+    seeds = [e["seed"] for root in done for e in _episodes(root)]
+    summary = Summary(stored=len(seeds))
+    started = time.monotonic()
+    workers = ExitStack()
+    engine = None
+    if summary.stored < config.episodes:
+        shards = -(-(config.episodes - summary.stored) // config.shard_episodes)  # rounded up
+        executor = make_executor(config.executor_config, jobs=shards)
+        engine = workers.enter_context(RolloutEngine(executor, ShardWork(config)))
+    bar = None
+    try:
+        if config.overwrite:
+            recover(out)
+            if out.exists():
+                shutil.rmtree(out)
+            journal.remove()
+        journal.start({**config.identity(), "repo_id": config.dataset_repo_id})
+        limit = config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
+        in_flight = {"jobs": 0, "seeds": 0}
+        last_seed = max(seeds, default=config.seed - 1)
+        if engine is not None and progress:
+            from kitbench.progress import progress as progress_bar
+
+            bar = progress_bar(config.episodes - summary.stored, f"record {config.task} (shards)")
+
+        def missing() -> int:  # seeds still to hand out
+            return min(config.episodes - summary.stored, limit - summary.attempted) - in_flight["seeds"]
+
+        def needed() -> int:  # jobs that may be in flight: those running, and one more while seeds are missing
+            return in_flight["jobs"] + (1 if missing() > 0 else 0)
+
+        def blocks():
+            seed = max(last_seed + 1, config.seed)
+            while True:
+                size = min(config.shard_episodes, missing())
+                in_flight["jobs"] += 1
+                in_flight["seeds"] += size
+                yield seed, size
+                seed += size
+
+        with StopSignals() as stops:
+            if engine is not None:
+                for (_, size), result in engine.results(blocks(), needed):
+                    in_flight["jobs"] -= 1
+                    in_flight["seeds"] -= size
+                    summary.attempted += result.seeds
+                    summary.successes += result.successes
+                    summary.physics_errors += result.physics_errors
+                    if result.stored:
+                        with stops.storing():
+                            done.append(_store_shard(journal, result))
+                            summary.stored += result.stored
+                            summary.frames += result.frames
+                        if bar is not None:
+                            bar.update(result.stored)
+                    if summary.stored >= config.episodes:
+                        break
+                    if summary.attempted >= limit:
+                        summary.gave_up = True
+                        break
+            with stops.storing():
+                _publish(done, out)
+        journal.remove()
+    except KeyboardInterrupt as exc:  # finished shards stay in the journal for --resume
+        summary.interrupted = True
+        summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT
+    finally:
+        workers.close()
+        if bar is not None:
+            bar.close()
+    summary.seconds = time.monotonic() - started
+    summary.size_bytes = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) if out.exists() else 0
+    return summary
+
+
+def _publish(done: list[Path], out: Path) -> None:
+    """Make `done` (the published dataset, if any, then the shards, in seed order) the dataset at `out`."""
+    from kitbench.recording.merge import merge
+
+    if not done or done == [out]:
+        return
+    if len(done) == 1:  # one shard, nothing published before: it is the dataset
+        os.replace(done[0], out)
+        return
+    staging = out.with_name(out.name + ".merged")
+    shutil.rmtree(staging, ignore_errors=True)
+    merge(done, staging, finished=False)  # `out`, when extended, has this recording's journal beside it
+    retired = out.with_name(out.name + ".retired")
+    if out.exists():
+        os.replace(out, retired)
+    os.replace(staging, out)
+    shutil.rmtree(retired, ignore_errors=True)

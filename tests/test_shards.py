@@ -1,0 +1,62 @@
+"""Sharded recording (`--shard-episodes`): workers write whole shards, merged at the end into the dataset one
+writer makes of the same seeds, on a local pool and on Ray; a sharded recording resumes and extends; bad
+settings are refused."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from kitbench.errors import KitbenchError
+from kitbench.recording.journal import journal_root
+from kitbench.recording.recorder import RecordConfig, record
+from tests.test_merge import _assert_same_recording, _frames
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+TASK = "LiftPegUpright-v1"
+EPISODES = 5
+
+
+@pytest.fixture(scope="module")
+def one_writer(tmp_path_factory):
+    out = tmp_path_factory.mktemp("one") / "lpu"
+    record(RecordConfig(task=TASK, episodes=EPISODES, out=out), progress=False)
+    return out
+
+
+def test_shards_on_a_pool_merge_into_the_one_writer_dataset(one_writer, tmp_path):
+    out = tmp_path / "lpu"
+    summary = record(RecordConfig(task=TASK, episodes=EPISODES, out=out, workers=2, shard_episodes=2), progress=False)
+    assert (summary.stored, summary.attempted, summary.frames) == (EPISODES, EPISODES, len(_frames(one_writer)))
+    _assert_same_recording(one_writer, out)
+    assert not journal_root(out).exists()  # the shards are merged and gone
+
+
+def test_a_sharded_recording_resumes_and_extends(one_writer, tmp_path):
+    out = tmp_path / "lpu"
+    record(RecordConfig(task=TASK, episodes=2, out=out, shard_episodes=2), progress=False)
+    record(RecordConfig(task=TASK, episodes=EPISODES, out=out, shard_episodes=2, resume=True), progress=False)
+    _assert_same_recording(one_writer, out)
+
+
+def test_a_sharded_journal_is_not_resumed_without_shards(tmp_path):
+    out = tmp_path / "lpu"
+    (journal_root(out) / "shards").mkdir(parents=True)
+    (journal_root(out) / "recording.json").write_text("{}")
+    with pytest.raises(KitbenchError, match=r"is an unfinished sharded recording; resume it with --shard-episodes"):
+        record(RecordConfig(task=TASK, episodes=2, out=out, resume=True), progress=False)
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"shard_episodes": -1}, "shard_episodes must be an integer >= 0, got -1"),
+        ({"shard_episodes": 2, "only_success": True}, "shard_episodes and only_success exclude each other"),
+    ],
+)
+def test_bad_shard_settings_are_refused_before_anything_is_written(tmp_path, settings, message):
+    with pytest.raises(KitbenchError) as err:
+        record(RecordConfig(task=TASK, episodes=2, out=tmp_path / "lpu", **settings), progress=False)
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+    assert list(tmp_path.iterdir()) == []
