@@ -2,7 +2,9 @@
 
 Options: `--task T`, `--episodes N` (per cell, 40), and filters on the cells: `--obs state,rgb` (`--no-rgb` when
 there is no Vulkan device), `--executor local,ray`, `--workers 1,2`, `--mcap on,off` (default on only: the off
-cells double the run); `--ceiling-episodes N` (0 skips the commit ceiling), `--ceiling-sample K`.
+cells double the run); `--shard-episodes N` (10: each multi-worker cell is recorded again with shards of N
+episodes, `--shard-episodes` of `kitbench record`; 0 skips them); `--ceiling-episodes N` (0 skips the commit
+ceiling), `--ceiling-sample K`.
 
 Records N expert episodes per cell into a temporary folder, for every combination of the filters, and prints
 episodes/min, frames/s and MiB per episode, all measured in one run (the machine is shared; compare ratios, not
@@ -81,7 +83,9 @@ def executor_label(executor: str, workers: int) -> str:
     return executor
 
 
-def cell(task: str, episodes: int, obs_mode: str, mcap: bool, executor: str, workers: int) -> dict:
+def cell(
+    task: str, episodes: int, obs_mode: str, mcap: bool, executor: str, workers: int, shard_episodes: int = 0
+) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
     config = RecordConfig(
         task=task,
@@ -92,6 +96,7 @@ def cell(task: str, episodes: int, obs_mode: str, mcap: bool, executor: str, wor
         workers=workers,
         executor=executor,
         ray_address="auto",
+        shard_episodes=shard_episodes,
     )
     try:
         with _timed_engine() as arrivals:
@@ -217,6 +222,12 @@ def main() -> None:
     parser.add_argument("--executor", type=_names(("local", "ray")), default=None, help="local,ray (default both)")
     parser.add_argument("--workers", type=_counts, default=[1, 2], help="worker counts, e.g. 1,2")
     parser.add_argument("--mcap", type=_names(("on", "off")), default=["on"], help="on,off (default on)")
+    parser.add_argument(
+        "--shard-episodes",
+        type=int,
+        default=10,
+        help="also record each multi-worker cell with shards of this many episodes (0: no shard cells)",
+    )
     parser.add_argument("--ceiling-episodes", type=int, default=200, help="episodes the writer takes in (0: skip)")
     parser.add_argument("--ceiling-sample", type=int, default=10, help="episodes recorded for the ceiling")
     args = parser.parse_args()
@@ -257,6 +268,19 @@ def main() -> None:
                         f"{r['mib_ep']:>12.2f} {_percent(overhead) if executor == 'ray' else '':>13}",
                         flush=True,
                     )
+                    if args.shard_episodes and workers > 1:
+                        # the shards' own writers: arrivals are shards, so no first-episode or steady figures
+                        sharded = results[obs, mcap, executor + "+shards", workers] = cell(
+                            args.task, args.episodes, obs, mcap, executor, workers, args.shard_episodes
+                        )
+                        label = executor_label(executor, workers) + "+shards"
+                        print(
+                            f"{obs:<6} {'on' if mcap else 'off':<5} {label:<13} "
+                            f"{workers:>7} {sharded['eps_min']:>13.1f} {sharded['fps']:>9.0f} {'–':>9} {'–':>11} "
+                            f"{sharded['mib_ep']:>12.2f} {'':>13}   shards/one writer "
+                            f"{sharded['eps_min'] / r['eps_min']:.2f}",
+                            flush=True,
+                        )
     print_ratios(results, obs_modes, mcaps, executors, args.workers)
     if args.ceiling_episodes > 0:
         mcap = True if True in mcaps else mcaps[0]
