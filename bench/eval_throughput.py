@@ -24,49 +24,19 @@ import math
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
 
-from ray_instance import start_ray
+from throughput import counts, executor_label, names, start_ray, timed_engine
 
-from kitbench.engine import RolloutEngine
 from kitbench.evaluation import runner
 from kitbench.evaluation.runner import EvalConfig, run_eval
 from kitbench.evaluation.suite import adhoc_suite
-
-_ARRIVALS: list[float] = []  # perf_counter() when each score of the running cell came back
-
-
-class _TimedEngine(RolloutEngine):
-    """The evaluation's rollout engine, noting when each result comes back."""
-
-    def results(self, jobs, needed=None):
-        for item in super().results(jobs, needed):
-            _ARRIVALS.append(time.perf_counter())
-            yield item
-
-
-@contextmanager
-def _timed_engine():
-    _ARRIVALS.clear()
-    saved = runner.RolloutEngine
-    runner.RolloutEngine = _TimedEngine  # type: ignore[misc]
-    try:
-        yield _ARRIVALS
-    finally:
-        runner.RolloutEngine = saved  # type: ignore[misc]
-
-
-def executor_label(executor: str, workers: int) -> str:
-    if executor == "local":
-        return "local:in-proc" if workers == 1 else "local:pool"
-    return executor
 
 
 def cell(task: str, policy: str, episodes: int, obs_mode: str, executor: str, workers: int) -> dict:
     config_executor = {"executor": executor, "ray_address": "auto"}
     with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as out:
         suite = adhoc_suite(task, episodes, obs_mode=obs_mode)
-        with _timed_engine() as arrivals:
+        with timed_engine(runner) as arrivals:
             start = time.perf_counter()
             report = run_eval(EvalConfig(suite, policy, out, workers=workers, **config_executor), progress=False)
     timing = report["timing"]
@@ -80,26 +50,6 @@ def cell(task: str, policy: str, episodes: int, obs_mode: str, executor: str, wo
     }
 
 
-def _names(valid: tuple[str, ...]):
-    def parse(text: str) -> list[str]:
-        items = [s.strip() for s in text.split(",") if s.strip()]
-        if not items or any(s not in valid for s in items):
-            raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of {', '.join(valid)}")
-        return list(dict.fromkeys(items))
-
-    return parse
-
-
-def _counts(text: str) -> list[int]:
-    try:
-        items = [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        items = []
-    if not items or min(items) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of worker counts >= 1")
-    return list(dict.fromkeys(items))
-
-
 def _percent(value: float) -> str:
     return "–" if math.isnan(value) else f"{100 * value:+.0f}%"
 
@@ -108,11 +58,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="LiftPegUpright-v1")
     parser.add_argument("--episodes", type=int, default=40, help="episodes per cell")
-    parser.add_argument("--policy", type=_names(("expert", "random")), default=["expert", "random"])
-    parser.add_argument("--obs", type=_names(("state", "rgb")), default=["state", "rgb"], help="state,rgb")
+    parser.add_argument("--policy", type=names(("expert", "random")), default=["expert", "random"])
+    parser.add_argument("--obs", type=names(("state", "rgb")), default=["state", "rgb"], help="state,rgb")
     parser.add_argument("--no-rgb", action="store_true", help="skip the camera cells (no Vulkan device)")
-    parser.add_argument("--executor", type=_names(("local", "ray")), default=None, help="local,ray (default both)")
-    parser.add_argument("--workers", type=_counts, default=[1, 2], help="worker counts, e.g. 1,2")
+    parser.add_argument("--executor", type=names(("local", "ray")), default=None, help="local,ray (default both)")
+    parser.add_argument("--workers", type=counts, default=[1, 2], help="worker counts, e.g. 1,2")
     args = parser.parse_args()
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")

@@ -23,10 +23,10 @@ the in-process executor cannot, so it may be negative. A warm-up episode first p
 pipelines), which the first cell would otherwise pay alone; pool and Ray workers set up their own, in their
 cells' time, as in a real run.
 
-Then the driver commit ceiling: K episodes recorded once in this process (`RecordWork`, real frames and MCAP
-logs) are handed N times, under distinct seeds, to the recorder's own write path (`EpisodeJournal.add`, then the
-recorder's `_publish` and `_commit`, committing every 30 s and at the end, as `record` does) with no episode
-running: the episodes/min and frames/s one writer can take in, whatever the executor. Printed with what one
+Then the driver commit ceiling: K episodes recorded once in this process (`RecordWork`, real frames and MCAP logs)
+are handed N times, under distinct seeds, to the recorder's own write path (`EpisodeJournal.add`, then the
+recorder's `publish_episode` and `commit_session`, committing every 30 s and at the end, as `record` does) with no
+episode running: the episodes/min and frames/s one writer can take in, whatever the executor. Printed with what one
 episode costs the writer (journal, dataset, commits), the bytes that travel from a worker to the writer
 (`pickle.dumps((episode, mcap), protocol=5)`), the MiB it takes on disk, and the number of workers one writer can
 feed: the ceiling over one worker's steady episodes/min (the 1-worker Ray cell's, else the in-process cell's, which
@@ -45,42 +45,12 @@ import shutil
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
-from ray_instance import start_ray
+from throughput import counts, executor_label, names, start_ray, timed_engine
 
-from kitbench.engine import RolloutEngine
 from kitbench.recording import recorder
 from kitbench.recording.recorder import RecordConfig, record
-
-_ARRIVALS: list[float] = []  # perf_counter() when each episode of the running cell reached the writer
-
-
-class _TimedEngine(RolloutEngine):
-    """The recorder's rollout engine, noting when each episode reaches the writer."""
-
-    def results(self, jobs, needed=None):
-        for item in super().results(jobs, needed):
-            _ARRIVALS.append(time.perf_counter())
-            yield item
-
-
-@contextmanager
-def _timed_engine():
-    _ARRIVALS.clear()
-    saved = recorder.RolloutEngine
-    recorder.RolloutEngine = _TimedEngine  # type: ignore[misc]
-    try:
-        yield _ARRIVALS
-    finally:
-        recorder.RolloutEngine = saved  # type: ignore[misc]
-
-
-def executor_label(executor: str, workers: int) -> str:
-    if executor == "local":
-        return "local:in-proc" if workers == 1 else "local:pool"
-    return executor
 
 
 def cell(
@@ -99,7 +69,7 @@ def cell(
         shard_episodes=shard_episodes,
     )
     try:
-        with _timed_engine() as arrivals:
+        with timed_engine(recorder) as arrivals:
             start = time.perf_counter()
             s = record(config, progress=False)
             seconds = time.perf_counter() - start
@@ -119,10 +89,8 @@ def cell(
 
 def commit_ceiling(task: str, obs_mode: str, mcap: bool, sample: int, episodes: int) -> dict:
     """The recorder's write path alone, fed `episodes` copies (distinct seeds) of `sample` recorded episodes."""
-    from kitbench.recording.dataset import DatasetWriter
-    from kitbench.recording.features import dataset_features
     from kitbench.recording.journal import EpisodeJournal
-    from kitbench.recording.recorder import _commit, _publish, make_recording_env
+    from kitbench.recording.recorder import commit_session, open_writer, publish_episode
     from kitbench.recording.work import RecordWork
 
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
@@ -137,15 +105,7 @@ def commit_ceiling(task: str, obs_mode: str, mcap: bool, sample: int, episodes: 
         finally:
             work.close()
         wire = sum(len(pickle.dumps(r, protocol=5)) for r in recorded) / sample
-        # the writer as recorder._record builds it
-        env = make_recording_env(config)
-        env.reset(seed=config.seed)
-        features = dataset_features(env)
-        fps = env.unwrapped.sim_config.control_freq
-        robot_uid = env.unwrapped.robot_uid
-        env.close()
-        recording = {**config.identity(), "repo_id": config.dataset_repo_id, "fps": fps}
-        writer = DatasetWriter(config.out, config.dataset_repo_id, fps, features, robot_uid, recording)
+        writer, recording = open_writer(config)  # the writer as the recorder builds it
         journal = EpisodeJournal(config.out)
         journal.start(recording)
         published: list[int] = []
@@ -158,17 +118,17 @@ def commit_ceiling(task: str, obs_mode: str, mcap: bool, sample: int, episodes: 
             t0 = time.perf_counter()
             path = journal.add(episode, log)
             t1 = time.perf_counter()
-            _publish(writer, episode, path)
+            publish_episode(writer, episode, path)
             published.append(episode.seed)
             frames += episode.length
             t2 = time.perf_counter()
             journal_s, publish_s = journal_s + t1 - t0, publish_s + t2 - t1
             if writer.session_age() >= config.commit_interval:
-                _commit(writer, journal, published)
+                commit_session(writer, journal, published)
                 commits += 1
                 commit_s += time.perf_counter() - t2
         t2 = time.perf_counter()
-        _commit(writer, journal, published)
+        commit_session(writer, journal, published)
         end = time.perf_counter()
         commits, commit_s = commits + 1, commit_s + end - t2
         seconds = end - start
@@ -189,26 +149,6 @@ def commit_ceiling(task: str, obs_mode: str, mcap: bool, sample: int, episodes: 
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def _names(valid: tuple[str, ...]):
-    def parse(text: str) -> list[str]:
-        items = [s.strip() for s in text.split(",") if s.strip()]
-        if not items or any(s not in valid for s in items):
-            raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of {', '.join(valid)}")
-        return list(dict.fromkeys(items))
-
-    return parse
-
-
-def _counts(text: str) -> list[int]:
-    try:
-        items = [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        items = []
-    if not items or min(items) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of worker counts >= 1")
-    return list(dict.fromkeys(items))
-
-
 def _percent(value: float) -> str:
     return "–" if math.isnan(value) else f"{100 * value:+.0f}%"
 
@@ -217,11 +157,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="LiftPegUpright-v1")
     parser.add_argument("--episodes", type=int, default=40, help="episodes per cell")
-    parser.add_argument("--obs", type=_names(("state", "rgb")), default=["state", "rgb"], help="state,rgb")
+    parser.add_argument("--obs", type=names(("state", "rgb")), default=["state", "rgb"], help="state,rgb")
     parser.add_argument("--no-rgb", action="store_true", help="skip the camera cells (no Vulkan device)")
-    parser.add_argument("--executor", type=_names(("local", "ray")), default=None, help="local,ray (default both)")
-    parser.add_argument("--workers", type=_counts, default=[1, 2], help="worker counts, e.g. 1,2")
-    parser.add_argument("--mcap", type=_names(("on", "off")), default=["on"], help="on,off (default on)")
+    parser.add_argument("--executor", type=names(("local", "ray")), default=None, help="local,ray (default both)")
+    parser.add_argument("--workers", type=counts, default=[1, 2], help="worker counts, e.g. 1,2")
+    parser.add_argument("--mcap", type=names(("on", "off")), default=["on"], help="on,off (default on)")
     parser.add_argument(
         "--shard-episodes",
         type=int,

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import kitbench
-from kitbench.engine.executor import EXECUTORS
+from kitbench.engine.config import EXECUTORS
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.registration import GYM_NAMESPACE, TASKS, canonical_task

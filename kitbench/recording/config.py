@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from kitbench.engine.executor import ExecutorConfig
+from kitbench.engine.config import ExecutorConfig
 from kitbench.envs.modes import REWARD_MODES
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE

@@ -55,6 +55,17 @@ def recover(root: Path) -> None:
         shutil.rmtree(retired)
 
 
+def remove_recording(root: Path) -> None:
+    """Delete the recording at `root`: the dataset, what a killed commit left, and its journal (`--overwrite`)."""
+    from kitbench.recording.journal import EpisodeJournal
+
+    root = Path(root)
+    recover(root)
+    if root.exists():
+        shutil.rmtree(root)
+    EpisodeJournal(root).remove()
+
+
 def _clone(src: Path, dst: Path) -> None:
     """Copy metadata, hard-link everything else (a session never rewrites existing data or video files)."""
     for path in src.rglob("*"):

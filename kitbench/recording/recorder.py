@@ -10,88 +10,30 @@ from __future__ import annotations
 
 import itertools
 import os
-import shutil
 import signal
 import sys
 import time
 from contextlib import ExitStack
-from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.recording.config import RecordConfig, load_recipe, make_recording_env, validate
 from kitbench.recording.journal import EpisodeJournal
 from kitbench.recording.stops import Stopped, StopSignals
+from kitbench.recording.summary import Summary, attempt_limit, folder_size
 from kitbench.recording.work import RecordWork
 
 MCAP_DIR = "mcap"
-ATTEMPTS_PER_EPISODE = 10  # default --max-attempts: this many attempts per episode asked for
 
 __all__ = ["MCAP_DIR", "RecordConfig", "Summary", "load_recipe", "make_recording_env", "record", "validate"]
 
 
 # -- the recording loop -----------------------------------------------------------------------------
-@dataclass
-class Summary:
-    stored: int = 0
-    attempted: int = 0
-    successes: int = 0
-    failures_dropped: int = 0
-    frames: int = 0
-    seconds: float = 0.0
-    size_bytes: int = 0
-    interrupted: bool = False
-    signal: int | None = None  # the signal that interrupted the run (SIGINT for Ctrl-C)
-    gave_up: bool = False  # stopped at max_attempts before storing every episode
-    physics_errors: int = 0  # attempts dropped because the simulation failed (info["physics_error"])
-
-    @property
-    def exit_code(self) -> int:
-        """The command's exit status: 128 + the signal when interrupted (130 for Ctrl-C), 3 when it gave up at
-        --max-attempts, 0 otherwise."""
-        if self.interrupted:
-            return 128 + (self.signal or 2)
-        return 3 if self.gave_up else 0
-
-    def lines(self, out: Path) -> list[str]:
-        rate = self.successes / self.attempted if self.attempted else 0.0
-        per_min = 60.0 * self.attempted / self.seconds if self.seconds > 0 else 0.0
-        lines = [
-            f"dataset: {out}",
-            (
-                f"episodes stored: {self.stored} (attempted {self.attempted}, success rate {rate:.1%}"
-                + (f", {self.failures_dropped} failed attempts not stored)" if self.failures_dropped else ")")
-            ),
-            (
-                f"frames: {self.frames}   speed: {per_min:.1f} episodes/min, "
-                f"{self.frames / max(self.seconds, 1e-9):.0f} frames/s"
-            ),
-            f"size on disk: {self.size_bytes / 2**20:.1f} MiB",
-        ]
-        if self.physics_errors:
-            lines.insert(2, f"not stored because the simulation failed: {self.physics_errors} attempt(s)")
-        if self.interrupted:
-            name = signal.Signals(self.signal or signal.SIGINT).name
-            lines.insert(0, f"interrupted ({name}): every completed episode was committed; continue with --resume")
-        if self.gave_up:
-            lines.insert(
-                0,
-                f"stopped after {self.attempted} attempts ({self.successes} successes, success rate {rate:.1%}): "
-                f"the attempt limit (--max-attempts) was reached with {self.stored} episode(s) stored; raise it and "
-                "continue with --resume",
-            )
-        return lines
-
-
-def _folder_size(path: Path) -> int:
-    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.exists() else 0
-
-
 def _say(message: str) -> None:
     print(f"kitbench record: {message}", file=sys.stderr, flush=True)
 
 
-def _publish(writer, episode, mcap_path: Path | None) -> None:
+def publish_episode(writer, episode, mcap_path: Path | None) -> None:
     """Add a journaled episode to the open session, its MCAP log linked in (the journal keeps its copy until
     the commit publishes the session)."""
     index = writer.add_episode(episode, {})
@@ -101,21 +43,40 @@ def _publish(writer, episode, mcap_path: Path | None) -> None:
         os.link(mcap_path, target)
 
 
-def _commit(writer, journal: EpisodeJournal, published: list[int]) -> None:
+def commit_session(writer, journal: EpisodeJournal, published: list[int]) -> None:
+    """Publish the open session and forget its journaled episodes."""
     writer.commit()
     journal.discard(published)
     published.clear()
 
 
+def open_writer(config: RecordConfig):
+    """The dataset writer of `config`'s recording and the settings it stores (features and fps read off the env:
+    the one place they are defined)."""
+    from kitbench.recording.dataset import DatasetWriter
+    from kitbench.recording.features import dataset_features
+
+    env = make_recording_env(config)
+    try:
+        env.reset(seed=config.seed)
+        features = dataset_features(env)
+        fps = env.unwrapped.sim_config.control_freq
+        robot_uid = env.unwrapped.robot_uid
+    finally:
+        env.close()
+    recording = {**config.identity(), "repo_id": config.dataset_repo_id, "fps": fps}
+    return DatasetWriter(config.out, config.dataset_repo_id, fps, features, robot_uid, recording), recording
+
+
 def record(config: RecordConfig, progress: bool = True) -> Summary:
     """Record `config.episodes` episodes (continuing a recording with `resume`); see the module docstring."""
-    from kitbench.recording.dataset import DatasetWriter, recover
+    from kitbench.recording.dataset import DatasetWriter, recover, remove_recording
 
     validate(config)
     if config.shard_episodes:
         from kitbench.recording.shards import record_sharded
 
-        return record_sharded(config, progress)
+        return record_sharded(config, progress, record)  # each shard is recorded by this function
     out = config.out
     journal = EpisodeJournal(out)
     committed: list[dict] = []
@@ -135,10 +96,7 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
         engine = workers.enter_context(RolloutEngine(executor, RecordWork(config)))
     try:
         if config.overwrite:
-            recover(out)
-            if out.exists():
-                shutil.rmtree(out)
-            journal.remove()
+            remove_recording(out)
         return _record(config, journal, committed, engine, progress, started)
     finally:
         workers.close()
@@ -152,19 +110,10 @@ def _record(
     progress: bool,
     start: float,
 ) -> Summary:
-    from kitbench.recording.dataset import DatasetWriter
-    from kitbench.recording.features import dataset_features
 
     out = config.out
     done_seeds = {e["seed"] for e in committed}
-    env = make_recording_env(config)
-    env.reset(seed=config.seed)
-    features = dataset_features(env)
-    fps = env.unwrapped.sim_config.control_freq
-    robot_uid = env.unwrapped.robot_uid
-    env.close()
-    recording = {**config.identity(), "repo_id": config.dataset_repo_id, "fps": fps}
-    writer = DatasetWriter(out, config.dataset_repo_id, fps, features, robot_uid, recording)
+    writer, recording = open_writer(config)
     out.parent.mkdir(parents=True, exist_ok=True)
     journal.start(recording)
     summary = Summary(stored=len(committed))
@@ -179,7 +128,7 @@ def _record(
                     break
                 episode, mcap_path = journal.load(seed)
                 with stops.storing():
-                    _publish(writer, episode, mcap_path)
+                    publish_episode(writer, episode, mcap_path)
                     published.append(seed)
                     replayed.append(seed)
                     summary.stored += 1
@@ -187,11 +136,11 @@ def _record(
                 # publish them now: a run killed again before its first commit would otherwise replay them all
                 # again, and kills coming faster than the replay would stall the recording
                 with stops.storing():
-                    _commit(writer, journal, published)
+                    commit_session(writer, journal, published)
             last = max([*done_seeds, *replayed], default=config.seed - 1)
             next_seed = max(last + 1, config.seed)
             remaining = config.episodes - summary.stored
-            limit = config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
+            limit = attempt_limit(config)
             if remaining > 0 and engine is not None:
                 if progress:
                     from kitbench.progress import progress as progress_bar
@@ -213,7 +162,7 @@ def _record(
                     else:
                         with stops.storing():
                             mcap_path = journal.add(episode, mcap)
-                            _publish(writer, episode, mcap_path)
+                            publish_episode(writer, episode, mcap_path)
                             published.append(episode.seed)
                             summary.stored += 1
                             summary.frames += episode.length
@@ -221,18 +170,15 @@ def _record(
                             bar.update(1)
                         if writer.session_age() >= config.commit_interval:
                             with stops.storing():  # a commit interrupted half-way would leave a session to discard
-                                _commit(writer, journal, published)
+                                commit_session(writer, journal, published)
                     if bar is not None:
                         bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
-                    if summary.stored >= config.episodes:
-                        break
-                    if summary.attempted >= limit:
-                        summary.gave_up = True
+                    if summary.should_stop(config.episodes, limit):
                         break
             with stops.storing():
-                _commit(writer, journal, published)
+                commit_session(writer, journal, published)
     except KeyboardInterrupt as exc:
-        _commit(writer, journal, published)
+        commit_session(writer, journal, published)
         summary.interrupted = True
         summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT
     except BaseException:
@@ -244,5 +190,5 @@ def _record(
     if summary.stored >= config.episodes:
         journal.remove()
     summary.seconds = time.monotonic() - start
-    summary.size_bytes = _folder_size(out)
+    summary.size_bytes = folder_size(out)
     return summary

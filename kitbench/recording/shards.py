@@ -33,6 +33,7 @@ from kitbench.engine import RolloutEngine, Work, make_executor
 from kitbench.recording.config import RecordConfig
 from kitbench.recording.journal import SHARDS_DIR, EpisodeJournal
 from kitbench.recording.stops import Stopped, StopSignals
+from kitbench.recording.summary import Summary, attempt_limit, folder_size
 
 SHARD_PREFIX = "shard-"
 # A shard is one session: committed once, at its end (a commit costs a session clone and a finalize).
@@ -60,15 +61,14 @@ def _tar(folder: Path) -> bytes:
 class ShardWork(Work):
     """Records the shard (first seed, seed count) with the recorder itself, in the worker's process."""
 
-    def __init__(self, config: RecordConfig):
+    def __init__(self, config: RecordConfig, record):
         self.config = config
+        self.record = record  # the one-writer recorder (`recorder.record`; pickled by reference)
 
     def setup(self) -> None:
         """Nothing shared: each shard is a recording of its own (it builds its env, seconds a shard)."""
 
     def run(self, job: tuple[int, int]) -> ShardResult:
-        from kitbench.recording.recorder import record
-
         first, count = job
         with tempfile.TemporaryDirectory(prefix="kitbench-shard-") as scratch:
             shard = dataclasses.replace(
@@ -85,7 +85,7 @@ class ShardWork(Work):
                 shard_episodes=0,
                 commit_interval=SHARD_COMMIT_INTERVAL,
             )
-            summary = record(shard, progress=False)
+            summary = self.record(shard, progress=False)
             data = _tar(shard.out) if summary.stored else b""
         return ShardResult(
             first, count, summary.stored, summary.successes, summary.physics_errors, summary.frames, data
@@ -130,10 +130,9 @@ def _episodes(root: Path) -> list[dict]:
     return DatasetWriter.committed_episodes(root)
 
 
-def record_sharded(config: RecordConfig, progress: bool = True):
-    """`record` with `config.shard_episodes` > 0 (validated by the caller); returns the recorder's Summary."""
-    from kitbench.recording.dataset import recover
-    from kitbench.recording.recorder import ATTEMPTS_PER_EPISODE, Summary
+def record_sharded(config: RecordConfig, progress: bool, record) -> Summary:
+    """`record` with `config.shard_episodes` > 0 (validated by the caller), each shard recorded by `record`."""
+    from kitbench.recording.dataset import recover, remove_recording
 
     out = config.out
     journal = EpisodeJournal(out)
@@ -149,16 +148,13 @@ def record_sharded(config: RecordConfig, progress: bool = True):
     if summary.stored < config.episodes:
         shards = -(-(config.episodes - summary.stored) // config.shard_episodes)  # rounded up
         executor = make_executor(config.executor_config, jobs=shards)
-        engine = workers.enter_context(RolloutEngine(executor, ShardWork(config)))
+        engine = workers.enter_context(RolloutEngine(executor, ShardWork(config, record)))
     bar = None
     try:
         if config.overwrite:
-            recover(out)
-            if out.exists():
-                shutil.rmtree(out)
-            journal.remove()
+            remove_recording(out)
         journal.start({**config.identity(), "repo_id": config.dataset_repo_id})
-        limit = config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
+        limit = attempt_limit(config)
         in_flight = {"jobs": 0, "seeds": 0}
         last_seed = max(seeds, default=config.seed - 1)
         if engine is not None and progress:
@@ -196,10 +192,7 @@ def record_sharded(config: RecordConfig, progress: bool = True):
                             summary.frames += result.frames
                         if bar is not None:
                             bar.update(result.stored)
-                    if summary.stored >= config.episodes:
-                        break
-                    if summary.attempted >= limit:
-                        summary.gave_up = True
+                    if summary.should_stop(config.episodes, limit):
                         break
             with stops.storing():
                 _publish(done, out)
@@ -212,7 +205,7 @@ def record_sharded(config: RecordConfig, progress: bool = True):
         if bar is not None:
             bar.close()
     summary.seconds = time.monotonic() - started
-    summary.size_bytes = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) if out.exists() else 0
+    summary.size_bytes = folder_size(out)
     return summary
 
 
