@@ -140,6 +140,31 @@ def test_sharded_recording_on_ray_writes_the_same_dataset_as_one_local_writer(cl
     _same_content(local_dataset, out)
 
 
+@pytest.mark.parametrize("shard_episodes", [0, 1])
+def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(needs_vulkan, cluster, tmp_path, shard_episodes):
+    """Camera episodes rendered in Ray actors (sent to the writer, or written into shards there) decode to the
+    frames a local one-worker recording stores."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    settings = {"task": "LiftPegUpright-v1", "episodes": 2, "obs_mode": "rgb", "mcap": False}
+    record(RecordConfig(**settings, out=tmp_path / "local"), progress=False)
+    on_ray = RecordConfig(
+        **settings,
+        out=tmp_path / "ray",
+        executor="ray",
+        workers=2,
+        ray_address=cluster.address,
+        shard_episodes=shard_episodes,
+    )
+    record(on_ray, progress=False)
+    local, ray_ds = LeRobotDataset("kitbench/a", root=tmp_path / "local"), LeRobotDataset("kitbench/b", root=on_ray.out)
+    assert len(local) == len(ray_ds) and local.meta.video_keys == ray_ds.meta.video_keys
+    for i in range(len(local)):
+        a, b = local[i], ray_ds[i]
+        for key in (*local.meta.video_keys, "observation.state", "action"):
+            assert np.array_equal(a[key].numpy(), b[key].numpy()), (i, key)
+
+
 def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
     suite = load_suite(SHORT).first(EPISODES)
     local = run_eval(EvalConfig(suite, "random", tmp_path / "local"), progress=False)
