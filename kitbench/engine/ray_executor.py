@@ -148,7 +148,11 @@ class RayExecutor(Executor):
         actor = ray.remote(num_cpus=1, max_restarts=MAX_RESTARTS, max_task_retries=MAX_RESTARTS)(_EpisodeWorker)
         self._actors = [actor.remote(work) for _ in range(self.workers)]
         self._outstanding = [[] for _ in self._actors]
-        ray.get([a.pid.remote() for a in self._actors])  # set-up errors surface here, before the first job
+        try:
+            ray.get([a.pid.remote() for a in self._actors])  # set-up errors surface here, before the first job
+        except BaseException:
+            self.close()  # no actors or Ray session left behind by a run that never started
+            raise
 
     def pids(self) -> list[int]:
         """The actors' process ids (tests kill one)."""
