@@ -41,15 +41,25 @@ class KitbenchEnvConfig(EnvConfig):
     `obs_type` "state" gives `agent_pos` (observation.state) and `environment_state`
     (observation.environment_state); "pixels_state" adds each camera's image (observation.images.<camera>).
     `control_mode` must be the one the training dataset was recorded in.
+
+    The comment above each field is its `--help` text (draccus reads comments, not this docstring).
     """
 
+    # A kitbench task: LiftPegUpright-v1 or AssemblingKits-v1 (any task registered with kitbench).
     task: str | None = "LiftPegUpright-v1"
+    # Control steps per second (20: the tasks' control frequency).
     fps: int = 20
+    # "state" (observation.state, observation.environment_state) or "pixels_state" (adds the cameras).
     obs_type: str = "state"
+    # Action space; must be the one the training dataset was recorded in (its meta/kitbench_recording.json).
     control_mode: str = "pd_joint_delta_pos"
-    episode_length: int | None = None  # default: the task's own step limit
+    # Steps before an episode is cut off; default: the task's own step limit.
+    episode_length: int | None = None
+    # How the env renders for lerobot's evaluation videos.
     render_mode: str = "rgb_array"
+    # Filled from the task's env (observation and action shapes); not meant to be set by hand.
     features: dict = field(default_factory=dict)
+    # Filled with features: the env's observation keys mapped to the dataset's feature names.
     features_map: dict = field(default_factory=dict)
 
     def __post_init__(self):

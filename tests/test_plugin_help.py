@@ -1,0 +1,36 @@
+"""`lerobot-eval --env.type=kitbench --help` reads like lerobot's own env configs: a section named after the
+config class, and a help line for each kitbench option saying what it takes."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+
+def test_lerobot_eval_help_documents_every_kitbench_option():
+    command = shutil.which("lerobot-eval", path=str(Path(sys.executable).parent))
+    assert command, "lerobot-eval is installed with lerobot"
+    done = subprocess.run(
+        [command, "--env.type=kitbench", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "HF_HUB_OFFLINE": "1", "COLUMNS": "200"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    text = done.stdout
+    section = text[text.index("KitbenchEnvConfig ['env']:") :]
+    section = section[: section.index("EvalConfig ['eval']:")]
+    assert "<locals>" not in text
+    flat = " ".join(section.split())  # argparse wraps help text under long option names
+    lines = {"--env." + part.split()[0]: part for part in flat.split(" --env.")[1:]}
+    for option, words in {
+        "--env.task": "LiftPegUpright-v1 or AssemblingKits-v1",
+        "--env.obs_type": '"state" (observation.state, observation.environment_state) or "pixels_state"',
+        "--env.control_mode": "must be the one the training dataset was recorded in",
+        "--env.episode_length": "default: the task's own step limit",
+    }.items():
+        assert words in lines[option], (option, lines[option])
