@@ -161,7 +161,7 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
         chosen = pick_video_seeds(results, config.videos)
         if chosen:
             try:
-                _film(engine, chosen, out, fps, report["output"]["videos"])
+                _film(engine, chosen, out, fps, report["output"]["videos"], progress)
             except Exception as exc:  # noqa: BLE001 - the scores stand whatever stops the videos; the report says why
                 report["output"]["video_error"] = _video_error(exc)
             now = time.monotonic()
@@ -207,9 +207,24 @@ def _save(report: dict, out: Path) -> None:
     write_json(report, out / REPORT_JSON)  # last: a report.json means the report.md beside it is complete
 
 
-def _film(engine: RolloutEngine, chosen: list[EpisodeResult], out: Path, fps: int, videos: list[dict]) -> None:
+def _film(
+    engine: RolloutEngine, chosen: list[EpisodeResult], out: Path, fps: int, videos: list[dict], progress: bool
+) -> None:
     """Replay and film `chosen`, appending each video to `videos` as soon as it is written (so the ones made
     before a failure stay listed)."""
+    bar = None
+    if progress:  # filming renders every step: seconds a video on a CPU, so it gets a bar of its own
+        from kitbench.progress import progress as progress_bar
+
+        bar = progress_bar(len(chosen), "videos")
+    try:
+        _film_each(engine, chosen, out, fps, videos, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _film_each(engine: RolloutEngine, chosen: list[EpisodeResult], out: Path, fps: int, videos: list[dict], bar):
     for scored, (replayed, mp4) in zip(chosen, engine.map(Film(r.seed, fps) for r in chosen), strict=True):
         path = out / VIDEOS_DIR / f"seed{scored.seed}_{'success' if scored.success else 'failure'}.mp4"
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -230,6 +245,8 @@ def _film(engine: RolloutEngine, chosen: list[EpisodeResult], out: Path, fps: in
                 "matches_scored_episode": same,
             }
         )
+        if bar is not None:
+            bar.update(1)
 
 
 def _video_error(exc: Exception) -> str:
