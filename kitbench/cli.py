@@ -93,6 +93,19 @@ def _merge(args) -> int:
     return 0
 
 
+def _view(args) -> int:
+    from kitbench.viewer import view
+
+    try:
+        written = view(Path(args.dataset), args.episode, Path(args.save) if args.save else None)
+    except KitbenchError as exc:
+        print(f"kitbench view: error: {exc}", file=sys.stderr)
+        return 2
+    if written is not None:
+        print(f"wrote {written}; open it with: rerun {written}")
+    return 0
+
+
 def _slug(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in text).strip("_.")[-80:] or "policy"
 
@@ -278,6 +291,14 @@ def build_parser() -> argparse.ArgumentParser:
     mrg.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     mrg.add_argument("--repo-id", dest="repo_id", help="repo id of the merged dataset (default: the shards')")
     mrg.set_defaults(func=_merge)
+    vw = sub.add_parser("view", help="show a recorded episode in LeRobot's viewer (Rerun), or save it as .rrd")
+    vw.add_argument("dataset", help="a dataset folder (LeRobot v3)")
+    vw.add_argument("--episode", type=int, default=0, help="episode index (default 0)")
+    vw.add_argument(
+        "--save",
+        help="write a .rrd file into this folder instead of opening a viewer (default without a display: outputs/view)",
+    )
+    vw.set_defaults(func=_view)
     ev = sub.add_parser("eval", help="score a policy on a fixed seed list; writes report.json/.md, plots and videos")
     ev.add_argument(
         "--task", help=f"one of {', '.join(TASKS)} (or its gym id {GYM_NAMESPACE}/<task>; implied by --suite)"
