@@ -110,6 +110,7 @@ def run_demo(config: DemoConfig, say=print) -> dict:
         f'  load a dataset:  python -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; '
         f"print(LeRobotDataset('kitbench/{first}', root='{out / 'datasets' / first}'))\""
     )
+    say(f"  view an episode: kitbench view {out / 'datasets' / first}")
     recipes = sorted(p.name for p in (ROOT / "datasets").glob("*.toml"))
     configs = sorted(p.name for p in (ROOT / "policies").glob("*.json"))
     if recipes:
