@@ -60,3 +60,30 @@ def test_bad_shard_settings_are_refused_before_anything_is_written(tmp_path, set
         record(RecordConfig(task=TASK, episodes=2, out=tmp_path / "lpu", **settings), progress=False)
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_sigterm_stops_a_sharded_pool_recording_promptly_and_resume_finishes(tmp_path):
+    """Shards recorded inside pool workers leave signals to the pool: SIGTERM ends the run (the pool's own SIGTERM
+    then ends the workers mid-shard), the stored shards stay, and --resume completes the seeds in order."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "lpu"
+    command = [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--episodes", "12", "--out", str(out)]
+    command += ["--workers", "2", "--shard-episodes", "3", "--no-mcap"]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    shards = journal_root(out) / "shards"
+    deadline = time.monotonic() + 240
+    while proc.poll() is None and not list(shards.glob("shard-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the recording ended before it could be stopped"
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)  # no worker left waiting: a hang fails here
+    assert proc.returncode == 128 + signal.SIGTERM, stderr[-2000:]
+    assert "continue with --resume" in stdout and list(shards.glob("shard-*"))
+    subprocess.run([*command, "--resume"], check=True, capture_output=True, timeout=300)
+    seeds = [json.loads(line)["seed"] for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
+    assert seeds == list(range(12))

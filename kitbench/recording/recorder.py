@@ -68,8 +68,9 @@ def open_writer(config: RecordConfig):
     return DatasetWriter(config.out, config.dataset_repo_id, fps, features, robot_uid, recording), recording
 
 
-def record(config: RecordConfig, progress: bool = True) -> Summary:
-    """Record `config.episodes` episodes (continuing a recording with `resume`); see the module docstring."""
+def record(config: RecordConfig, progress: bool = True, signals: bool = True) -> Summary:
+    """Record `config.episodes` episodes (continuing a recording with `resume`); see the module docstring.
+    `signals`: Ctrl-C, SIGTERM and SIGHUP stop the recording cleanly (off for a shard recorded inside a worker)."""
     from kitbench.recording.dataset import DatasetWriter, recover, remove_recording
 
     validate(config)
@@ -97,7 +98,7 @@ def record(config: RecordConfig, progress: bool = True) -> Summary:
     try:
         if config.overwrite:
             remove_recording(out)
-        return _record(config, journal, committed, engine, progress, started)
+        return _record(config, journal, committed, engine, progress, started, signals)
     finally:
         workers.close()
 
@@ -109,6 +110,7 @@ def _record(
     engine: RolloutEngine | None,
     progress: bool,
     start: float,
+    signals: bool,
 ) -> Summary:
 
     out = config.out
@@ -120,7 +122,7 @@ def _record(
     published: list[int] = []  # seeds in the open session, journaled until it is committed
     bar = None
     try:
-        with StopSignals() as stops:
+        with StopSignals(enabled=signals) as stops:
             # episodes a killed run had finished but not committed: publish them first, in seed order
             replayed: list[int] = []
             for seed in journal.seeds():

@@ -85,7 +85,7 @@ class ShardWork(Work):
                 shard_episodes=0,
                 commit_interval=SHARD_COMMIT_INTERVAL,
             )
-            summary = self.record(shard, progress=False)
+            summary = self.record(shard, progress=False, signals=False)  # the worker's signals are its pool's
             data = _tar(shard.out) if summary.stored else b""
         return ShardResult(
             first, count, summary.stored, summary.successes, summary.physics_errors, summary.frames, data

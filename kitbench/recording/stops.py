@@ -22,7 +22,10 @@ class StopSignals:
     Inside `storing()` a signal is held until the episode being stored is in the journal and the session: raised
     in the middle, it would lose an episode that had finished."""
 
-    def __init__(self):
+    def __init__(self, enabled: bool = True):
+        # disabled in a recording that runs inside a worker (a shard): the worker's signals are its pool's or Ray's
+        # to handle (a pool ends its workers with SIGTERM, which must end them)
+        self.enabled = enabled
         self._old: dict = {}
         self._storing = False
         self._held: int | None = None
@@ -34,7 +37,7 @@ class StopSignals:
             raise Stopped(signum)
 
     def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
+        if self.enabled and threading.current_thread() is threading.main_thread():
             for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
                 self._old[signum] = signal.signal(signum, self._handle)
         return self
