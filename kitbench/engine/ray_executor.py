@@ -154,12 +154,6 @@ class RayExecutor(Executor):
             self.close()  # no actors or Ray session left behind by a run that never started
             raise
 
-    def pids(self) -> list[int]:
-        """The actors' process ids (tests kill one)."""
-        import ray
-
-        return ray.get([a.pid.remote() for a in self._actors])
-
     def submit(self, job: Any) -> Any:
         import ray
 
