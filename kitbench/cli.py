@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -131,6 +132,8 @@ def eval_config_from_args(args):
         if missing:
             raise KitbenchError(f"missing {', '.join(missing)} (or give --suite eval/suites/<name>.toml)")
         suite = adhoc_suite(args.task, args.episodes, DEFAULT_FIRST_SEED if args.seed is None else args.seed, **modes)
+    if args.settle_steps is not None:
+        suite = dataclasses.replace(suite, settle_steps=args.settle_steps)
     out = Path(args.out) if args.out else Path("outputs/eval") / suite.task / _slug(args.policy)
 
     def chosen(flag, key, default):  # the flag, else the suite's setting, else the default
@@ -329,6 +332,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="default pd_joint_delta_pos, or the mode a lerobot/replay policy was trained in",
     )
     ev.add_argument("--reward-mode", dest="reward_mode", help="reward summed into returns (default dense)")
+    ev.add_argument(
+        "--settle-steps",
+        dest="settle_steps",
+        type=int,
+        help="steps an episode runs on after its first success (default: the suite's, else 0); above 0 the "
+        "headline metric is success_at_end instead of success_once",
+    )
     ev.set_defaults(func=_eval)
     cmp = sub.add_parser(
         "compare",

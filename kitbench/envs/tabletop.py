@@ -17,6 +17,7 @@ from __future__ import annotations
 import abc
 import copy
 import importlib
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -30,6 +31,7 @@ from kitbench.envs.grasp import GraspHistory
 from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, REWARD_MODES
 from kitbench.envs.observations import flatten_state, pose7, space_for
 from kitbench.errors import KitbenchError, check_choice
+from kitbench.perturbations import Perturbations
 from kitbench.robots.panda import ARM_JOINTS, READY_ARM_QPOS, ROBOTS, Panda, gripper_action_to_target
 from kitbench.sim.cameras import Camera, CameraSpec
 from kitbench.sim.scene import SimConfig, add_table_and_ground, create_scene
@@ -72,6 +74,9 @@ class TabletopEnv(gym.Env, abc.ABC):
     failure_categories: ClassVar[tuple[str, ...]] = ()
     # (id key, name key) of `episode_config()` by which reports break success down, e.g. per shape; None: none.
     report_groups: ClassVar[tuple[str, str] | None] = None
+    # Whether `_load_task` builds the task's object to `object_scale` (and `evaluate` measures it as built): the
+    # `object_scale` perturbation is refused by tasks that do not.
+    supports_object_scale: ClassVar[bool] = False
     # The task's scripted expert: its class, or "module:Class" (as gymnasium's entry points), which keeps the
     # planner's module, which needs the task's geometry, from being imported by the task's own module.
     expert: ClassVar[str | type | None] = None
@@ -92,6 +97,7 @@ class TabletopEnv(gym.Env, abc.ABC):
         render_mode: str | None = None,
         robot_init_qpos_noise: float | None = None,
         sim_config: SimConfig | None = None,
+        perturbations: Mapping[str, float] | None = None,
     ):
         robot_uids = robot_uids or self.supported_robots[0]
         check_choice("obs_mode", obs_mode, OBS_MODES)
@@ -122,6 +128,11 @@ class TabletopEnv(gym.Env, abc.ABC):
         self._human_camera: Camera | None = None
         self.action_space: spaces.Box = self.controller.action_space
         self.elapsed_steps = 0
+        # Robustness perturbations (kitbench.perturbations), applied at the hooks below; their draws derive from
+        # each episode's seed (reset(seed=None) draws a key from this generator, reseeded by every seed).
+        self.perturbations = Perturbations(perturbations)
+        self.perturbations.check(self)
+        self._perturbation_keys = np.random.default_rng()
         obs, _ = self.reset(seed=0)
         self.observation_space = space_for(obs)
 
@@ -203,17 +214,27 @@ class TabletopEnv(gym.Env, abc.ABC):
     def has_expert(cls) -> bool:
         return cls.expert is not None
 
+    @property
+    def object_scale(self) -> float:
+        """The factor a task that `supports_object_scale` builds its object to (1 unless perturbed)."""
+        return self.perturbations.object_scale()
+
     # -- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         options = options or {}
         rng = self.np_random
+        if self.perturbations:
+            if seed is not None:
+                self._perturbation_keys = np.random.default_rng(seed)
+            self.perturbations.start_episode(seed if seed is not None else int(self._perturbation_keys.integers(2**62)))
         noise = rng.normal(0.0, self.robot_init_qpos_noise, 7) if self.robot_init_qpos_noise > 0 else 0.0
-        arm_qpos = READY_ARM_QPOS + noise
+        arm_qpos = self.perturbations.initial_qpos(READY_ARM_QPOS + noise)
         self._build_world()
         self.robot.reset(arm_qpos)
         self.controller.reset(arm_qpos)
         self._initialize_episode(rng, options)
+        self.perturbations.objects(self)
         self.elapsed_steps = 0
         info = self.evaluate()
         obs = self._observation(info)
@@ -224,10 +245,11 @@ class TabletopEnv(gym.Env, abc.ABC):
         """One control step. If the physics diverges (a NaN, infinite or absurdly fast body, see
         `MAX_BODY_SPEED`), the episode ends instead: truncated, reward 0, not a success, the last finite
         observation and info, and `info["physics_error"]` saying which body went wrong and how."""
-        action = self._check_action(action)
-        arm_qpos = self.robot.qpos()[:7]
-        arm_targets = self.controller.arm_targets(action[:-1].astype(np.float64), arm_qpos)
-        self.robot.set_targets(arm_targets, gripper_action_to_target(action[-1]))
+        executed = self.perturbations.action(self._check_action(action), self)
+        if executed is not None:  # None: a delayed action has not arrived yet, the drives keep their targets
+            arm_qpos = self.robot.qpos()[:7]
+            arm_targets = self.controller.arm_targets(executed[:-1].astype(np.float64), arm_qpos)
+            self.robot.set_targets(arm_targets, gripper_action_to_target(executed[-1]))
         for _ in range(self.sim_config.substeps):
             self.scene.step()
         self.elapsed_steps += 1
@@ -272,11 +294,15 @@ class TabletopEnv(gym.Env, abc.ABC):
         """
         self.scene = create_scene(self.sim_config, render=self._renders)
         add_table_and_ground(self.scene, render=self._renders)
-        self.robot = Panda(self.scene, self._robot_spec, ROBOT_BASE, render=self._renders)
+        if self._renders:
+            self.perturbations.lighting(self.scene)
+        base = self.perturbations.robot_base(ROBOT_BASE)
+        self.robot = Panda(self.scene, self._robot_spec, base, render=self._renders)
         self._load_task(self.scene, self._renders)
         self._cameras, self._human_camera = {}, None
         if self.obs_mode in IMAGE_OBS_MODES:
-            self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in self.camera_specs()}
+            specs = [self.perturbations.camera(s) for s in self.camera_specs()]
+            self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in specs}
         if self.render_mode == "rgb_array":
             self._human_camera = Camera(self.scene, self._render_camera(), None)
         # The bodies `_physics_fault` watches, collected at the first step: a task may add bodies while it
@@ -339,20 +365,24 @@ class TabletopEnv(gym.Env, abc.ABC):
         """The nested state observation: `agent` (qpos, qvel) and `extra` (tcp_pose and the task's fields)."""
         extra = {"tcp_pose": pose7(self.robot.tcp_pose())}
         extra.update(self.task_state())
-        return {
+        state = {
             "agent": {"qpos": self.robot.qpos().astype(np.float32), "qvel": self.robot.qvel().astype(np.float32)},
             "extra": extra,
         }
+        if self.perturbations.changes_observations:
+            return self.perturbations.observation(state, self.elapsed_steps)
+        return state
 
     def robot_state(self) -> np.ndarray:
         """LeRobot's `observation.state`: 7 arm joint positions and the gripper opening (sum of the two finger
         joints, metres), named by `ROBOT_STATE_NAMES`."""
-        q = self.robot.qpos()
+        # measured as the state observation is (with its noise, under an observation perturbation)
+        q = self.state_dict()["agent"]["qpos"] if self.perturbations.changes_observations else self.robot.qpos()
         return np.append(q[:7], q[7] + q[8]).astype(np.float32)
 
     def environment_state(self) -> np.ndarray:
         """Object and goal state as one float32 vector (see `environment_state_keys`)."""
-        fields = self.task_state()
+        fields = self.state_dict()["extra"] if self.perturbations.changes_observations else self.task_state()
         return np.concatenate(
             [np.asarray(fields[k], dtype=np.float32).reshape(-1) for k in self.environment_state_keys]
         )

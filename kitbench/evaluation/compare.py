@@ -43,6 +43,8 @@ TEST_NAMES = {"fisher": "Fisher's exact test", "barnard": "Barnard's exact test"
 SHORT_NAMES = {"fisher": "Fisher", "barnard": "Barnard", "mcnemar": "McNemar"}
 # What decides whether two reports measured the same thing (the suite's name, description and file do not).
 SUITE_FIELDS = ("task", "seeds", "obs_mode", "control_mode", "reward_mode")
+# Fields newer suites have, with the value an older report's suite had without them.
+SUITE_DEFAULTS = {"settle_steps": 0, "perturbations": {}}
 BETTER, WORSE, NONE = "better", "worse", "none"
 
 
@@ -405,6 +407,10 @@ def suite_differences(a: dict, b: dict) -> list[str]:
                 found.append(f"seeds: A has {ta}, B has {tb}")
         elif va != vb:
             found.append(f"{key}: A {va!r}, B {vb!r}")
+    for key, default in SUITE_DEFAULTS.items():
+        va, vb = sa.get(key, default), sb.get(key, default)
+        if va != vb:
+            found.append(f"{key}: A {va!r}, B {vb!r}")
     return found
 
 
@@ -443,10 +449,11 @@ def _groups(report: dict) -> tuple[str, str, dict] | None:
 def _rows(a: dict, b: dict, a_path: Path, b_path: Path, pairs, test: str) -> list[Row]:
     rows = []
 
-    def add(section, name, higher_is_better, ca, cb, paired_outcome=None, paired_subset=None):
+    def add(section, name, higher_is_better, ca, cb, paired_outcome=None, paired_subset=None, own_pairs=None):
         paired = None
-        if pairs is not None and paired_outcome is not None and ca is not None and cb is not None:
-            subset = pairs if paired_subset is None else [p for p in pairs if paired_subset(*p)]
+        chosen = pairs if own_pairs is None else own_pairs
+        if chosen is not None and paired_outcome is not None and ca is not None and cb is not None:
+            subset = chosen if paired_subset is None else [p for p in chosen if paired_subset(*p)]
             if subset:
                 paired = _pair(subset, paired_outcome)
         rows.append(Row(section, name, higher_is_better, ca, cb, paired, unpaired_test=test))
@@ -462,6 +469,11 @@ def _rows(a: dict, b: dict, a_path: Path, b_path: Path, pairs, test: str) -> lis
     )
     na, nb = rows[0].a, rows[0].b
     assert na is not None and nb is not None
+    for metric in ("success_once", "success_at_end"):  # reports before version 2 have neither
+        if metric in a or metric in b:
+            ca = _count(a_path, metric, a[metric]) if metric in a else None
+            cb = _count(b_path, metric, b[metric]) if metric in b else None
+            add("success", metric, True, ca, cb, lambda e, metric=metric: e.get(metric))
     for name in dict.fromkeys([*a["criteria"], *b["criteria"]]):
         ca = _count(a_path, f"criteria.{name}", a["criteria"][name]) if name in a["criteria"] else None
         cb = _count(b_path, f"criteria.{name}", b["criteria"][name]) if name in b["criteria"] else None
@@ -490,9 +502,26 @@ def _rows(a: dict, b: dict, a_path: Path, b_path: Path, pairs, test: str) -> lis
                 return ea.get("config", {}).get(id_key) == gid and eb.get("config", {}).get(id_key) == gid
 
             add(name_key, label, True, ca, cb, lambda e: e["success"], in_group)
+    _robustness_rows(a, b, a_path, b_path, add)
     for row in rows:
         row.compute()
     return rows
+
+
+def _robustness_rows(a: dict, b: dict, a_path: Path, b_path: Path, add) -> None:
+    """One row per perturbation and level either report scored, paired on the seeds both ran under it."""
+    ca_all = {(c["perturbation"], c["level"]): c for c in a.get("robustness", [])}
+    cb_all = {(c["perturbation"], c["level"]): c for c in b.get("robustness", [])}
+    for key in dict.fromkeys([*ca_all, *cb_all]):
+        ra, rb = ca_all.get(key), cb_all.get(key)
+        where = f"robustness.{key[0]}={key[1]:g}"
+        ca = None if ra is None else _count(a_path, where, ra["success"])
+        cb = None if rb is None else _count(b_path, where, rb["success"])
+        label = f"{key[0]} {key[1]:g} {(ra or rb or {}).get('unit', '')}".strip()
+        pairs = None
+        if ra is not None and rb is not None:
+            pairs = _paired_episodes(ra, rb)
+        add("perturbation", label, True, ca, cb, lambda e: e["success"], None, pairs)
 
 
 def compare_reports(

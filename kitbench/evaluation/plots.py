@@ -7,13 +7,13 @@ from pathlib import Path
 from kitbench.evaluation.report import group_table
 
 
-def _figure(width: float = 6.0, height: float = 3.6):
+def _figure(width: float = 6.0, height: float = 3.6, **grid):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt, *plt.subplots(figsize=(width, height), dpi=100)
+    return plt, *plt.subplots(figsize=(width, height), dpi=100, **grid)
 
 
 def _rates(ax, labels, rows):
@@ -54,9 +54,11 @@ def write_plots(report: dict, folder: Path) -> list[Path]:
     written = []
 
     plt, fig, ax = _figure()
-    rows = [report["success"], *report["criteria"].values()]
-    _rates(ax, ["success", *report["criteria"]], rows)
-    ax.set_title(title, fontsize=9)
+    # both success metrics (older reports have only the one), then the criteria
+    metrics = [m for m in ("success_once", "success_at_end") if m in report] or ["success"]
+    rows = [report[m] for m in metrics] + list(report["criteria"].values())
+    _rates(ax, [*metrics, *report["criteria"]], rows)
+    ax.set_title(f"{title} · headline {report.get('headline', 'success_once')}", fontsize=9)
     written.append(_save(plt, fig, folder / "success.png"))
 
     episodes = report["per_episode"]
@@ -79,7 +81,42 @@ def write_plots(report: dict, folder: Path) -> list[Path]:
         _rates(ax, [f"{r[id_key]} {r[name]}" for r in rows], rows)
         ax.set_title(f"success by {name} · {title}", fontsize=9)
         written.append(_save(plt, fig, folder / f"per_{name}.png"))
+    if report.get("robustness"):
+        written.append(_robustness(report, folder / "robustness.png", title))
     return written
+
+
+def _robustness(report: dict, path: Path, title: str) -> Path:
+    """Success against level, one panel per perturbation, the nominal rate and its interval as a band."""
+    names = list(dict.fromkeys(c["perturbation"] for c in report["robustness"]))
+    columns = min(3, len(names))
+    rows = (len(names) + columns - 1) // columns
+    plt, fig, axes = _figure(3.2 * columns, 2.6 * rows + 0.4, nrows=rows, ncols=columns, squeeze=False)
+    axes = list(axes.flat)
+    nominal = report["success"]
+    for ax, name in zip(axes, names, strict=False):
+        conditions = sorted((c for c in report["robustness"] if c["perturbation"] == name), key=lambda c: c["level"])
+        # the nominal run sits at the level that changes nothing (0, or 1 for a factor), so each panel reads as
+        # success against the size of the change
+        points = sorted(
+            [(conditions[0].get("nominal_level", 0.0), nominal), *((c["level"], c["success"]) for c in conditions)],
+            key=lambda p: p[0],
+        )
+        levels = [p[0] for p in points]
+        rates = [p[1]["rate"] for p in points]
+        low = [max(0.0, p[1]["rate"] - p[1]["ci95"][0]) for p in points]
+        high = [max(0.0, p[1]["ci95"][1] - p[1]["rate"]) for p in points]
+        ax.axhspan(*nominal["ci95"], color="0.85", zorder=0)
+        ax.axhline(nominal["rate"], color="0.4", lw=1, label="nominal")
+        ax.errorbar(levels, rates, yerr=[low, high], marker="o", capsize=3, color="#4c72b0")
+        ax.set_ylim(0, 1.05)
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel(conditions[0]["unit"], fontsize=8)
+        ax.set_ylabel("success (95% CI)", fontsize=8)
+    for ax in axes[len(names) :]:
+        ax.axis("off")
+    fig.suptitle(f"robustness · {title} · grey: nominal", fontsize=9)
+    return _save(plt, fig, path)
 
 
 def _save(plt, fig, path: Path) -> Path:

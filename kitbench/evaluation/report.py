@@ -2,6 +2,11 @@
 
 Everything in `report.json` except its `timing` section depends only on the policy and the suite, so two runs
 compare equal, whatever the number of workers.
+
+`success` is the suite's headline metric (`headline`: `success_once` or `success_at_end`, see
+`kitbench.evaluation.suite`); both are reported beside it, overall and per group. A robustness suite adds
+`robustness`: each perturbation and level scored on the same seeds, with its difference from the nominal run and
+an exact McNemar test on the seeds (paired: the same seed nominal and perturbed).
 """
 
 from __future__ import annotations
@@ -12,11 +17,14 @@ from pathlib import Path
 import kitbench
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.outcomes import PHYSICS_ERROR
+from kitbench.evaluation.significance import mcnemar_p
 from kitbench.evaluation.stats import describe, rate
 from kitbench.evaluation.suite import Suite
 from kitbench.registration import task_entry
 
-REPORT_VERSION = 1
+# 2: `headline`, `success_once`, `success_at_end` (overall, per group, per episode), suite `settle_steps` and
+# `perturbations`, `robustness`
+REPORT_VERSION = 2
 
 
 def _timing_parts(timing: dict) -> str:
@@ -39,22 +47,79 @@ def _per_group(results: list[EpisodeResult], id_key: str, name_key: str) -> list
     for group_id in sorted(groups):
         rs = groups[group_id]
         row = {id_key: group_id, name_key: rs[0].config[name_key], **rate(sum(r.success for r in rs), len(rs))}
+        row["success_once"] = rate(sum(r.success_once for r in rs), len(rs))
+        row["success_at_end"] = rate(sum(r.success_at_end for r in rs), len(rs))
         for name in rs[0].criteria:
             row[name] = sum(r.criteria[name] for r in rs) / len(rs)
         rows.append(row)
     return rows
 
 
-def build_report(suite: Suite, policy: str, results: list[EpisodeResult], control_timestep: float) -> dict:
-    n = len(results)
-    successes = [r for r in results if r.success]
-    names = list(results[0].criteria) if results else []
-    env_class = task_entry(suite.task).env_class
-    # the task's categories in its stage order, then episodes the simulator could not finish
+def _categories(env_class, results: list[EpisodeResult]) -> dict[str, int]:
+    """Failures by category: the task's categories in its stage order, then episodes the simulator could not
+    finish."""
     categories = dict.fromkeys((*env_class.failure_categories, PHYSICS_ERROR), 0)
     for r in results:
         if r.failure is not None:
             categories[r.failure] = categories.get(r.failure, 0) + 1
+    return categories
+
+
+def _condition(name: str, level: float, results: list[EpisodeResult], nominal: list[EpisodeResult], env_class) -> dict:
+    """One perturbation at one level: its rates, failures, and how it differs from the nominal run seed by seed."""
+    from kitbench.perturbations import PERTURBATIONS
+
+    n = len(results)
+    by_seed = {r.seed: r for r in nominal}
+    lost = sum(1 for r in results if by_seed[r.seed].success and not r.success)
+    gained = sum(1 for r in results if r.success and not by_seed[r.seed].success)
+    success = rate(sum(r.success for r in results), n)
+    return {
+        "perturbation": name,
+        "level": level,
+        "unit": PERTURBATIONS[name].unit,
+        "nominal_level": PERTURBATIONS[name].nominal_level,
+        "description": PERTURBATIONS[name].description,
+        "episodes": n,
+        "success": success,
+        "success_once": rate(sum(r.success_once for r in results), n),
+        "success_at_end": rate(sum(r.success_at_end for r in results), n),
+        "criteria": {c: rate(sum(r.criteria[c] for r in results), n) for c in (results[0].criteria if n else {})},
+        "failure_categories": _categories(env_class, results),
+        # seeds that succeed nominal and fail perturbed, and the other way round; only these discordant seeds
+        # carry evidence of a difference (exact McNemar test)
+        "vs_nominal": {
+            "difference": success["rate"] - sum(r.success for r in nominal) / max(len(nominal), 1),
+            "seeds_lost": lost,
+            "seeds_gained": gained,
+            "p_value": mcnemar_p(lost, gained),
+        },
+        "per_episode": [
+            {
+                "seed": r.seed,
+                "success": r.success,
+                "success_once": r.success_once,
+                "success_at_end": r.success_at_end,
+                "failure": r.failure,
+                "physics_error": r.physics_error,
+            }
+            for r in results
+        ],
+    }
+
+
+def build_report(
+    suite: Suite,
+    policy: str,
+    results: list[EpisodeResult],
+    control_timestep: float,
+    perturbed: dict[tuple[str, float], list[EpisodeResult]] | None = None,
+) -> dict:
+    n = len(results)
+    successes = [r for r in results if r.success]
+    names = list(results[0].criteria) if results else []
+    env_class = task_entry(suite.task).env_class
+    categories = _categories(env_class, results)
     report = {
         "report_version": REPORT_VERSION,
         "kitbench_version": kitbench.__version__,
@@ -62,7 +127,10 @@ def build_report(suite: Suite, policy: str, results: list[EpisodeResult], contro
         "policy": policy,
         "suite": suite.to_dict(),
         "episodes": n,
+        "headline": suite.headline,
         "success": rate(len(successes), n),
+        "success_once": rate(sum(r.success_once for r in results), n),
+        "success_at_end": rate(sum(r.success_at_end for r in results), n),
         "criteria": {name: rate(sum(r.criteria[name] for r in results), n) for name in names},
         "episode_length": describe(r.length for r in results),
         "steps_to_success": describe(r.steps_to_success for r in successes),
@@ -79,6 +147,14 @@ def build_report(suite: Suite, policy: str, results: list[EpisodeResult], contro
         id_key, name_key = env_class.report_groups
         report["report_groups"] = [id_key, name_key]
         report[f"per_{name_key}"] = _per_group(results, id_key, name_key)
+    if suite.perturbations:
+        perturbed = perturbed or {}
+        report["robustness"] = [
+            _condition(name, level, perturbed[(name, level)], results, env_class)
+            for condition in suite.conditions[1:]
+            if condition is not None
+            for name, level in [condition]
+        ]
     return report
 
 
@@ -115,6 +191,56 @@ def _dist_row(name: str, d: dict | None, unit: str = "") -> str:
     )
 
 
+def _headline_text(report: dict) -> str:
+    headline = report.get("headline", "success_once")
+    settle = report["suite"].get("settle_steps", 0)
+    if headline == "success_at_end":
+        return f"the headline is success_at_end: episodes run {settle} steps past their first success"
+    return "the headline is success_once: an episode ends at its first success"
+
+
+def _short(r: dict | None) -> str:
+    """A rate with its interval, compactly (a table cell)."""
+    if r is None:
+        return "–"
+    lo, hi = r["ci95"]
+    return f"{r['rate']:.0%} ({lo:.0%}–{hi:.0%})"
+
+
+def _robustness_lines(report: dict) -> list[str]:
+    nominal = report["success"]
+    lines = [
+        "",
+        "## Robustness",
+        "",
+        (
+            "The suite's seeds under each perturbation, one at a time; Δ is the change in success from the nominal "
+            "run, p an exact McNemar test on the seeds that changed outcome."
+        ),
+        "",
+        "| perturbation | level | success (95% CI) | Δ | seeds lost / gained | p | main failure |",
+        "|---|---|---|---|---|---|---|",
+        f"| nominal | – | {_short(nominal)} | – | – | – | {_main_failure(report['failure_categories'])} |",
+    ]
+    for c in report["robustness"]:
+        vs = c["vs_nominal"]
+        lines.append(
+            f"| {c['perturbation']} | {c['level']:g} {c['unit']} | {_short(c['success'])} | "
+            f"{vs['difference']:+.0%} | {vs['seeds_lost']} / {vs['seeds_gained']} | {vs['p_value']:.3g} | "
+            f"{_main_failure(c['failure_categories'])} |"
+        )
+    lines += ["", "What each perturbation does:", ""]
+    for name in dict.fromkeys(c["perturbation"] for c in report["robustness"]):
+        first = next(c for c in report["robustness"] if c["perturbation"] == name)
+        lines.append(f"- `{name}` ({first['unit']}): {first['description']}")
+    return lines
+
+
+def _main_failure(categories: dict[str, int]) -> str:
+    worst = max(categories.items(), key=lambda kv: kv[1], default=("", 0))
+    return f"{worst[0]} ({worst[1]})" if worst[1] else "–"
+
+
 def markdown(report: dict) -> str:
     suite = report["suite"]
     lines = [
@@ -126,7 +252,10 @@ def markdown(report: dict) -> str:
         f"obs `{suite['obs_mode']}`, control `{suite['control_mode']}`, reward `{suite['reward_mode']}`. "
         f"kitbench {report['kitbench_version']}.",
         "",
-        f"**Success: {_pct(report['success'])}**",
+        f"**Success: {_pct(report['success'])}** ({_headline_text(report)})",
+        "",
+        f"- success_once (successful at any step): {_pct(report['success_once'])}",
+        f"- success_at_end (successful at the last step): {_pct(report['success_at_end'])}",
         "",
         "## Success criteria (at the last step)",
         "",
@@ -159,15 +288,19 @@ def markdown(report: dict) -> str:
             "",
             f"## Per {name}",
             "",
-            f"| id | {name} | episodes | success | 95% CI | " + " | ".join(crit) + " |",
-            "|---|---|---|---|---|" + "---|" * len(crit),
+            f"| id | {name} | episodes | success | 95% CI | success_once | success_at_end | " + " | ".join(crit) + " |",
+            "|---|---|---|---|---|---|---|" + "---|" * len(crit),
         ]
         for row in rows:
             lo, hi = row["ci95"]
             lines.append(
                 f"| {row[id_key]} | {row[name]} | {row['episodes']} | {row['rate']:.0%} | "
-                f"{lo:.0%}–{hi:.0%} | " + " | ".join(f"{row[c]:.0%}" for c in crit) + " |"
+                f"{lo:.0%}–{hi:.0%} | {_short(row.get('success_once'))} | {_short(row.get('success_at_end'))} | "
+                + " | ".join(f"{row[c]:.0%}" for c in crit)
+                + " |"
             )
+    if report.get("robustness"):
+        lines += _robustness_lines(report)
     errors = [e for e in report["per_episode"] if e.get("physics_error")]
     if errors:
         lines += ["", "## Physics errors", ""]

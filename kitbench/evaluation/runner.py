@@ -19,7 +19,7 @@ from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.suite import Suite
-from kitbench.evaluation.work import EvalWork, Film, make_suite_env
+from kitbench.evaluation.work import EvalWork, Film, Trial, make_suite_env
 
 REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
 
@@ -139,9 +139,9 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             (out / stale).unlink(missing_ok=True)
         for stale in (PLOTS_DIR, VIDEOS_DIR):
             shutil.rmtree(out / stale, ignore_errors=True)
-        results = _score(engine, suite, progress)
+        results, perturbed = _score(engine, suite, progress)
         scored = time.monotonic()
-        report = _write_report(suite, config.policy, results, timestep, out)
+        report = _write_report(suite, config.policy, results, timestep, out, perturbed)
         reported = time.monotonic()
         # Wall time from the call to the report, and its parts: checking the setup (loading the policy, building
         # an env: seconds for a lerobot checkpoint), scoring (worker start-up included) and writing the report.
@@ -171,30 +171,57 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     return report
 
 
-def _score(engine: RolloutEngine, suite: Suite, progress: bool) -> list[EpisodeResult]:
+def _jobs(suite: Suite) -> list[int | Trial]:
+    """The nominal seeds, then every seed under each perturbation and level (`suite.conditions`)."""
+    jobs: list[int | Trial] = list(suite.seeds)
+    for condition in suite.conditions[1:]:
+        assert condition is not None
+        jobs += [Trial(seed, *condition) for seed in suite.seeds]
+    return jobs
+
+
+def _score(
+    engine: RolloutEngine, suite: Suite, progress: bool
+) -> tuple[list[EpisodeResult], dict[tuple[str, float], list[EpisodeResult]]]:
+    """The nominal results, and the results under each (perturbation, level), in seed order."""
+    jobs = _jobs(suite)
     bar = None
     if progress:
         from kitbench.progress import progress as progress_bar
 
-        bar = progress_bar(len(suite.seeds), f"eval {suite.task}")
+        bar = progress_bar(len(jobs), f"eval {suite.task}")
     results: list[EpisodeResult] = []
+    perturbed: dict[tuple[str, float], list[EpisodeResult]] = {}
     try:
-        for result in engine.map(suite.seeds):
-            results.append(result)
+        for job, result in zip(jobs, engine.map(jobs), strict=True):
+            if isinstance(job, Trial):
+                perturbed.setdefault((job.perturbation, job.level), []).append(result)
+            else:
+                results.append(result)
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
+                if not perturbed:
+                    bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
+                else:
+                    bar.set_postfix(condition=f"{job.perturbation}={job.level:g}")  # type: ignore[union-attr]
     finally:
         if bar is not None:
             bar.close()
-    return results
+    return results, perturbed
 
 
-def _write_report(suite: Suite, policy: str, results: list[EpisodeResult], timestep: float, out: Path) -> dict:
+def _write_report(
+    suite: Suite,
+    policy: str,
+    results: list[EpisodeResult],
+    timestep: float,
+    out: Path,
+    perturbed: dict[tuple[str, float], list[EpisodeResult]] | None = None,
+) -> dict:
     from kitbench.evaluation.plots import write_plots
     from kitbench.evaluation.report import build_report
 
-    report = build_report(suite, policy, results, timestep)
+    report = build_report(suite, policy, results, timestep, perturbed)
     report["output"] = {"videos": []}
     report["output"]["plots"] = [str(p.relative_to(out)) for p in write_plots(report, out / PLOTS_DIR)]
     return report
@@ -266,14 +293,21 @@ def summary_lines(report: dict, out: Path) -> list[str]:
     lines = [
         (
             f"{report['task']} · {report['policy']} · {report['episodes']} episodes: success {s['rate']:.1%} "
-            f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%})"
+            f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%}; {report['headline']})"
         )
     ]
+    if report["headline"] == "success_at_end":
+        lines.append(f"  success_once: {report['success_once']['rate']:.1%}")
     for name, r in report["criteria"].items():
         lines.append(f"  {name}: {r['rate']:.1%}")
     failures = {k: v for k, v in report["failure_categories"].items() if v}
     if failures:
         lines.append("  failures: " + ", ".join(f"{k} {v}" for k, v in failures.items()))
+    lines.extend(
+        f"  {c['perturbation']} {c['level']:g} {c['unit']}: {c['success']['rate']:.1%} "
+        f"({c['vs_nominal']['difference']:+.1%}, p {c['vs_nominal']['p_value']:.2g})"
+        for c in report.get("robustness", [])
+    )
     lines.append(
         f"  report: {out / REPORT_MD} (+ {REPORT_JSON}, {len(report['output']['plots'])} plots, "
         f"{len(report['output']['videos'])} videos)"

@@ -1,8 +1,17 @@
-"""Evaluation suites: a task, a fixed list of seeds and the modes the policy is scored in.
+"""Evaluation suites: a task, a fixed list of seeds, the modes the policy is scored in, how long an episode runs
+after its first success, and the perturbations a robustness suite adds.
 
 A suite file (`eval/suites/<name>.toml`) pins everything that decides the numbers, so two evaluations on one
 suite are comparable. Suite seeds start far from 0 so that datasets recorded from seed 0 (the recorder's
 default) never contain an evaluation episode.
+
+`settle_steps` (default 0): the task ends an episode at its first success; a suite may let it run on for this
+many steps, so that what matters is whether the task is still done at the end (a peg let go of must stay
+upright). The report gives both of ManiSkill's metrics, `success_once` and `success_at_end`; its headline is
+`success_at_end` when `settle_steps` > 0, else `success_once` (with no settling the two are equal).
+
+`[suite.perturbations]` (a robustness suite): `name = [level, ...]`, each a `kitbench.perturbations` entry. The
+suite's seeds run once nominal and once under each perturbation at each level, one at a time.
 """
 
 from __future__ import annotations
@@ -12,8 +21,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from kitbench.control.controllers import CONTROL_MODES
-from kitbench.envs.modes import REWARD_MODES
+from kitbench.envs.modes import IMAGE_OBS_MODES, REWARD_MODES
 from kitbench.errors import KitbenchError
+from kitbench.perturbations import PERTURBATIONS, make_perturbation
 from kitbench.registration import TASKS, canonical_task, task_entry
 from kitbench.settings import check_seed, is_seed, read_settings
 
@@ -29,6 +39,8 @@ SUITE_KEYS = (
     "executor",
     "workers",
     "ray_address",
+    "settle_steps",
+    "perturbations",
 )
 SUITE_TABLE = "suite"
 DEFAULT_FIRST_SEED = 1_000_000
@@ -43,6 +55,9 @@ class Suite:
     control_mode: str = "pd_joint_delta_pos"
     reward_mode: str = "dense"
     description: str = ""
+    settle_steps: int = 0  # steps an episode runs on after its first success
+    # (name, levels) pairs; each level is one run of every seed under that perturbation
+    perturbations: tuple[tuple[str, tuple[float, ...]], ...] = ()
     source: str | None = field(default=None, compare=False)  # the file it came from
     # Where the suite's episodes run by default (kitbench.engine.ExecutorConfig; flags override them). Not part of
     # what the suite is: the numbers do not depend on them, so they are left out of comparisons and reports.
@@ -62,6 +77,15 @@ class Suite:
         ):
             if value not in valid:
                 raise KitbenchError(f"{self._where()}unknown {key} {value!r}; valid choices: {', '.join(valid)}")
+        if isinstance(self.settle_steps, bool) or not isinstance(self.settle_steps, int) or self.settle_steps < 0:
+            raise KitbenchError(f"{self._where()}settle_steps must be an integer >= 0, got {self.settle_steps!r}")
+        object.__setattr__(self, "perturbations", _parse_perturbations(self.perturbations, self._where()))
+        for name, _levels in self.perturbations:
+            if PERTURBATIONS[name].images_only and self.obs_mode not in IMAGE_OBS_MODES:
+                raise KitbenchError(
+                    f"{self._where()}perturbation {name} changes camera images only; obs_mode {self.obs_mode!r} has "
+                    f"none (use rgb or rgbd)"
+                )
         if not self.seeds:
             raise KitbenchError(f"{self._where()}no seeds")
         if len(set(self.seeds)) != len(self.seeds):
@@ -69,6 +93,16 @@ class Suite:
         bad = [s for s in self.seeds if not is_seed(s)]
         if bad:
             raise KitbenchError(f"{self._where()}seeds must be non-negative integers, got {bad[0]!r}")
+
+    @property
+    def headline(self) -> str:
+        """The metric a report leads with: `success_at_end` when episodes settle after success, else `success_once`."""
+        return "success_at_end" if self.settle_steps > 0 else "success_once"
+
+    @property
+    def conditions(self) -> list[tuple[str, float] | None]:
+        """What each run of the seeds is under: None (nominal) first, then every (perturbation, level)."""
+        return [None, *((name, level) for name, levels in self.perturbations for level in levels)]
 
     def _where(self) -> str:
         return f"suite {self.source}: " if self.source else ""
@@ -94,8 +128,34 @@ class Suite:
             "control_mode": self.control_mode,
             "reward_mode": self.reward_mode,
             "description": self.description,
+            "settle_steps": self.settle_steps,
+            "perturbations": {name: list(levels) for name, levels in self.perturbations},
             "source": self.source,
         }
+
+
+def _parse_perturbations(value, where: str) -> tuple[tuple[str, tuple[float, ...]], ...]:
+    """`{name: level or [levels]}` (a suite file's table) or (name, levels) pairs, each level checked."""
+    pairs = value.items() if isinstance(value, dict) else value
+    try:
+        pairs = list(pairs)
+    except TypeError:
+        pairs = None
+    if pairs is None or not all(isinstance(p, tuple | list) and len(p) == 2 for p in pairs):
+        raise KitbenchError(f"{where}perturbations must be a table of name = [level, ...], got {value!r}")
+    out = []
+    for name, levels in pairs:
+        levels = tuple(levels) if isinstance(levels, list | tuple) else (levels,)
+        if not levels:
+            raise KitbenchError(f"{where}perturbation {name} has no levels")
+        try:
+            checked = tuple(make_perturbation(name, level).level for level in levels)
+        except KitbenchError as exc:
+            raise KitbenchError(f"{where}{exc}") from None
+        if len(set(checked)) != len(checked):
+            raise KitbenchError(f"{where}perturbation {name} repeats a level: {list(levels)}")
+        out.append((name, checked))
+    return tuple(out)
 
 
 def seed_range(start: int, count: int) -> tuple[int, ...]:

@@ -1,5 +1,6 @@
 """The evaluation's `Work`: a worker builds the suite's env and the policy once, then scores seeds
-(`episode.evaluate_episode`) or films them (`Film`: the episode replayed in an env that renders, returned with its
+(`episode.evaluate_episode`), scores seeds under a perturbation (`Trial`: one env per perturbation and level,
+built on its first trial), or films them (`Film`: the episode replayed in an env that renders, returned with its
 MP4's bytes, so a video made on another machine reaches the report folder)."""
 
 from __future__ import annotations
@@ -22,7 +23,16 @@ class Film:
     fps: int
 
 
-def make_suite_env(suite: Suite, render: bool = False):
+@dataclass(frozen=True)
+class Trial:
+    """Score `seed` under `perturbation` at `level` (a robustness suite's condition)."""
+
+    seed: int
+    perturbation: str
+    level: float
+
+
+def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, float] | None = None):
     from kitbench.registration import make_env
 
     return make_env(
@@ -31,6 +41,7 @@ def make_suite_env(suite: Suite, render: bool = False):
         control_mode=suite.control_mode,
         reward_mode=suite.reward_mode,
         render_mode="rgb_array" if render else None,
+        perturbations=None if perturbation is None else dict([perturbation]),
     )
 
 
@@ -40,6 +51,7 @@ class EvalWork(Work):
         self.policy_spec = policy
         self._env: Any = None
         self._video_env: Any = None
+        self._perturbed_envs: dict[tuple[str, float], Any] = {}
         self._policy: Any = None
 
     def __getstate__(self) -> dict:
@@ -54,11 +66,18 @@ class EvalWork(Work):
         self._env = make_suite_env(self.suite)
         self._policy = make_policy(self.policy_spec)
 
-    def run(self, job: int | Film) -> EpisodeResult | tuple[EpisodeResult, bytes]:
-        """A seed → its score; a `Film` → (the replayed episode's score, the MP4's bytes)."""
+    def run(self, job: int | Trial | Film) -> EpisodeResult | tuple[EpisodeResult, bytes]:
+        """A seed → its score; a `Trial` → its score under the perturbation; a `Film` → (the replayed episode's
+        score, the MP4's bytes)."""
         if isinstance(job, Film):
             return self.film(job)
-        return evaluate_episode(self._env, self._policy, job)
+        if isinstance(job, Trial):
+            condition = (job.perturbation, job.level)
+            env = self._perturbed_envs.get(condition)
+            if env is None:
+                env = self._perturbed_envs[condition] = make_suite_env(self.suite, perturbation=condition)
+            return evaluate_episode(env, self._policy, job.seed, settle_steps=self.suite.settle_steps)
+        return evaluate_episode(self._env, self._policy, job, settle_steps=self.suite.settle_steps)
 
     def film(self, job: Film) -> tuple[EpisodeResult, bytes]:
         from kitbench.evaluation.video import write_mp4
@@ -66,13 +85,14 @@ class EvalWork(Work):
         if self._video_env is None:  # built on the first video: most evaluations film nothing
             self._video_env = make_suite_env(self.suite, render=True)
         frames: list = []
-        result = evaluate_episode(self._video_env, self._policy, job.seed, frames)
+        result = evaluate_episode(self._video_env, self._policy, job.seed, frames, self.suite.settle_steps)
         with tempfile.TemporaryDirectory(prefix="kitbench-video-") as scratch:
             path = write_mp4(Path(scratch) / "episode.mp4", frames, job.fps)
             return result, path.read_bytes()
 
     def close(self) -> None:
-        for env in (self._env, self._video_env):
+        for env in (self._env, self._video_env, *self._perturbed_envs.values()):
             if env is not None:
                 env.close()
         self._env = self._video_env = None
+        self._perturbed_envs = {}

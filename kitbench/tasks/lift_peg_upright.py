@@ -34,25 +34,26 @@ MAX_Z_ERROR = 0.005  # m
 LYING_QUAT = (math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0)  # long axis along world x
 
 
-def peg_success(position, quaternion) -> tuple[bool, float, float]:
-    """(success, tilt from vertical in rad, centre height error in m) for a peg pose."""
+def peg_success(position, quaternion, half_length: float = PEG_HALF_LENGTH) -> tuple[bool, float, float]:
+    """(success, tilt from vertical in rad, centre height error in m) for a pose of a peg `2 * half_length` long."""
     axis = quat_to_matrix(quaternion)[:, 0]
     tilt = tilt_from_vertical(axis)
-    z_error = abs(float(position[2]) - PEG_HALF_LENGTH)
+    z_error = abs(float(position[2]) - half_length)
     return (tilt < MAX_TILT and z_error < MAX_Z_ERROR), tilt, z_error
 
 
-def build_peg(scene: sapien.Scene, render: bool) -> sapien.Entity:
-    """A square-section peg along its x axis, its +x half red and its -x half blue."""
+def build_peg(scene: sapien.Scene, render: bool, scale: float = 1.0) -> sapien.Entity:
+    """A square-section peg along its x axis, its +x half red and its -x half blue, `scale` times the standard
+    size."""
     builder = scene.create_actor_builder()
-    half = [PEG_HALF_LENGTH, PEG_HALF_WIDTH, PEG_HALF_WIDTH]
+    length, width = PEG_HALF_LENGTH * scale, PEG_HALF_WIDTH * scale
     material = physx.PhysxMaterial(PEG_FRICTION, PEG_FRICTION, 0.0)
-    builder.add_box_collision(half_size=half, material=material, density=PEG_DENSITY)
+    builder.add_box_collision(half_size=[length, width, width], material=material, density=PEG_DENSITY)
     if render:
-        quarter = [PEG_HALF_LENGTH / 2, PEG_HALF_WIDTH, PEG_HALF_WIDTH]
+        quarter = [length / 2, width, width]
         for sign, colour in ((1, RED), (-1, BLUE)):
             material = sapien.render.RenderMaterial(base_color=colour, roughness=0.5, specular=0.3)
-            builder.add_box_visual(sapien.Pose([sign * PEG_HALF_LENGTH / 2, 0, 0]), quarter, material=material)
+            builder.add_box_visual(sapien.Pose([sign * length / 2, 0, 0]), quarter, material=material)
     return builder.build(name="peg")
 
 
@@ -64,12 +65,14 @@ class LiftPegUprightEnv(TabletopEnv):
     max_dense_reward = 3.0
     default_qpos_noise = 0.02
     environment_state_keys = ("peg_pose",)
+    supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
     failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
     expert = "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"
 
     def _load_task(self, scene, render):
-        self.peg = build_peg(scene, render)
+        self.peg_scale = self.object_scale
+        self.peg = build_peg(scene, render, self.peg_scale)
 
     @property
     def target_object(self):
@@ -93,11 +96,11 @@ class LiftPegUprightEnv(TabletopEnv):
 
     def _initialize_episode(self, rng, options):
         xy = rng.uniform(-0.1, 0.1, 2)
-        set_actor_pose(self.peg, [xy[0], xy[1], PEG_HALF_WIDTH], LYING_QUAT)
+        set_actor_pose(self.peg, [xy[0], xy[1], PEG_HALF_WIDTH * self.peg_scale], LYING_QUAT)
 
     def evaluate(self):
         pose = self.peg.pose
-        success, tilt, z_error = peg_success(pose.p, pose.q)
+        success, tilt, z_error = peg_success(pose.p, pose.q, PEG_HALF_LENGTH * self.peg_scale)
         return {
             "success": success,
             "upright": tilt < MAX_TILT,
