@@ -70,6 +70,8 @@ def make_report(
                 failure=failure,
                 config=config,
                 final={"success": ok},
+                success_once=ok,
+                success_at_end=ok,
             )
         )
     suite = Suite(name="synthetic", task=task, seeds=tuple(seeds), **modes)
@@ -212,7 +214,7 @@ def test_criteria_and_failure_categories_are_compared_too(tmp_path):
         del report["per_episode"]
         for entry in report["criteria"].values():
             del entry["count"]
-    upright = compare_reports(*pair(tmp_path, a, b)).rows[1]
+    upright = next(r for r in compare_reports(*pair(tmp_path, a, b)).rows if r.name == "upright")
     assert (upright.name, upright.a.count, upright.b.count, upright.paired) == ("upright", 4, 10, None)
     assert upright.p == pytest.approx(fisher_p(4, 12, 10, 12), rel=1e-9)
 

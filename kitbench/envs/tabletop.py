@@ -411,6 +411,11 @@ class TabletopEnv(gym.Env, abc.ABC):
         return self._robot_spec.uid
 
     @property
+    def observes_images(self) -> bool:
+        """Whether observations hold camera images (obs_mode rgb or rgbd)."""
+        return self.obs_mode in IMAGE_OBS_MODES
+
+    @property
     def camera_names(self) -> tuple[str, ...]:
         """Cameras in this env's observations (empty unless obs_mode is rgb or rgbd)."""
         return tuple(self._cameras)

@@ -6,9 +6,9 @@ from collections import deque
 
 import numpy as np
 
+from kitbench.control.noise_units import NOISE_UNITS
 from kitbench.perturbations.base import Perturbation
 from kitbench.perturbations.registry import register_perturbation
-from kitbench.recording.noise import NOISE_UNITS
 
 
 @register_perturbation

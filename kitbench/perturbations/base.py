@@ -52,9 +52,7 @@ class Perturbation:
 
     def check(self, env: TabletopEnv) -> None:
         """Refuse an env this perturbation cannot change (called once, when the env is made)."""
-        from kitbench.envs.modes import IMAGE_OBS_MODES
-
-        if self.images_only and env.obs_mode not in IMAGE_OBS_MODES:
+        if self.images_only and not env.observes_images:
             raise KitbenchError(
                 f"perturbation {self.name} changes camera images only; obs_mode {env.obs_mode!r} has none "
                 f"(use rgb or rgbd)"

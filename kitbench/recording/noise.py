@@ -16,21 +16,9 @@ import math
 
 import numpy as np
 
+from kitbench.control.noise_units import NOISE_UNITS
 from kitbench.errors import KitbenchError
 
-JOINT_UNIT = 0.02  # rad per joint: one step of it moves the TCP ~1 cm at the Panda's reach
-POSITION_UNIT = 0.01  # m, about what JOINT_UNIT does to the TCP
-ROTATION_UNIT = 0.02  # rad
-NOISE_UNITS = {
-    "pd_joint_delta_pos": [JOINT_UNIT] * 7,
-    "pd_joint_target_delta_pos": [JOINT_UNIT] * 7,
-    "pd_joint_pos": [JOINT_UNIT] * 7,
-    "pd_ee_delta_pos": [POSITION_UNIT] * 3,
-    "pd_ee_target_delta_pos": [POSITION_UNIT] * 3,
-    "pd_ee_delta_pose": [POSITION_UNIT] * 3 + [ROTATION_UNIT] * 3,
-    "pd_ee_target_delta_pose": [POSITION_UNIT] * 3 + [ROTATION_UNIT] * 3,
-    "pd_ee_pose": [POSITION_UNIT] * 3 + [ROTATION_UNIT] * 3,
-}
 _STREAM = 0xDA27  # keeps the noise stream apart from the env's own use of the seed
 
 
