@@ -272,3 +272,11 @@ def test_perturbations_apply_in_registry_order_whatever_order_they_are_given_in(
     b = Perturbations({"action_delay": 1, "obs_noise": 0.1})
     assert [p.name for p in a.active] == [p.name for p in b.active]
     assert a.to_dict() == {"action_delay": 1, "obs_noise": 0.1}
+
+
+def test_the_evaluation_doc_lists_every_perturbation_with_its_unit():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "evaluation.md").read_text()
+    for name, unit, _ in describe():
+        assert f"| `{name}` | {unit} |" in doc, name

@@ -7,7 +7,24 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
+
+import draccus
+import numpy as np
+import pytest
+from lerobot.envs.configs import EnvConfig
+from sapien import physx
+
+from lerobot_env_kitbench.config import KitbenchEnvConfig
+from lerobot_env_kitbench.env import LeRobotKitbenchEnv
+
+
+@dataclass
+class Top:
+    """A command line with one `--env.*` group, as lerobot-eval's."""
+
+    env: EnvConfig = field(default_factory=KitbenchEnvConfig)
 
 
 def test_lerobot_eval_help_documents_every_kitbench_option():
@@ -32,5 +49,21 @@ def test_lerobot_eval_help_documents_every_kitbench_option():
         "--env.obs_type": '"state" (observation.state, observation.environment_state) or "pixels_state"',
         "--env.control_mode": "must be the one the training dataset was recorded in",
         "--env.episode_length": "default: the task's own step limit",
+        "--env.perturbations": "Robustness perturbations by name and level",
     }.items():
         assert words in lines[option], (option, lines[option])
+
+
+def test_env_perturbations_parse_from_the_command_line_and_reach_the_env():
+    parsed = draccus.parse(Top, args=["--env.type=kitbench", '--env.perturbations={"object_mass": 100}'])
+    kwargs = parsed.env.gym_kwargs
+    assert kwargs["perturbations"] == {"object_mass": 100}
+    masses = []
+    for extra in ({}, {"perturbations": kwargs["perturbations"]}):
+        env = LeRobotKitbenchEnv("LiftPegUpright-v1", render_mode=None, **extra)
+        env.reset(seed=0)
+        peg = env.unwrapped._env.target_object
+        masses.append(peg.find_component_by_type(physx.PhysxRigidDynamicComponent).mass)
+    assert np.isclose(masses[1], 2 * masses[0])
+    with pytest.raises(draccus.utils.ParsingError):
+        draccus.parse(Top, args=["--env.type=kitbench", '--env.perturbations={"wind": 1}'])

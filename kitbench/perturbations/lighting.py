@@ -21,7 +21,7 @@ def _scale_lights(scene: sapien.Scene, factors: np.ndarray) -> None:
 @register_perturbation
 class LightIntensity(Perturbation):
     name = "light_intensity"
-    unit = "x"
+    unit = "×"
     description = "every light (ambient and directional) `level` times as bright (0.5: half, 2: double)"
     minimum, maximum = 0.0, 10.0
     nominal_level = 1.0

@@ -15,6 +15,7 @@ from lerobot.envs.configs import EnvConfig
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, STATE, action_feature, observation_features
 from kitbench.errors import check_choice
+from kitbench.perturbations import Perturbations
 from kitbench.registration import TASKS, make_env
 from lerobot_env_kitbench.env import OBS_TYPES, register_lerobot_envs
 
@@ -57,6 +58,9 @@ class KitbenchEnvConfig(EnvConfig):
     episode_length: int | None = None
     # How the env renders for lerobot's evaluation videos.
     render_mode: str = "rgb_array"
+    # Robustness perturbations by name and level, e.g. '{"object_mass": 50, "action_delay": 1}' (see kitbench's
+    # docs/evaluation.md); default: none.
+    perturbations: dict = field(default_factory=dict)
     # Filled from the task's env (observation and action shapes); not meant to be set by hand.
     features: dict = field(default_factory=dict)
     # Filled with features: the env's observation keys mapped to the dataset's feature names.
@@ -66,6 +70,7 @@ class KitbenchEnvConfig(EnvConfig):
         check_choice("task", self.task, tuple(TASKS))
         check_choice("obs_type", self.obs_type, OBS_TYPES)
         check_choice("control_mode", self.control_mode, CONTROL_MODES)
+        Perturbations(self.perturbations)  # refuses unknown names and levels out of range here, in one line
         register_lerobot_envs()  # tasks registered after this package was imported get their gym ids too
         observations, action = _env_features(self.task, self.control_mode)
         self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=tuple(action["shape"]))}
@@ -85,4 +90,6 @@ class KitbenchEnvConfig(EnvConfig):
         kwargs = {"obs_type": self.obs_type, "control_mode": self.control_mode, "render_mode": self.render_mode}
         if self.episode_length is not None:
             kwargs["max_episode_steps"] = self.episode_length
+        if self.perturbations:
+            kwargs["perturbations"] = dict(self.perturbations)
         return kwargs

@@ -33,10 +33,13 @@ class LeRobotKitbenchEnv(gym.Env):
         obs_type: str = "state",
         control_mode: str = "pd_joint_delta_pos",
         render_mode: str | None = "rgb_array",
+        perturbations: dict | None = None,
     ):
         check_choice("obs_type", obs_type, OBS_TYPES)
         obs_mode = "rgb" if obs_type == "pixels_state" else "state_dict"
-        self._env = make_env(task, obs_mode=obs_mode, control_mode=control_mode, render_mode=render_mode).unwrapped
+        self._env = make_env(
+            task, obs_mode=obs_mode, control_mode=control_mode, render_mode=render_mode, perturbations=perturbations
+        ).unwrapped
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": self._env.sim_config.control_freq}
         self.action_space = self._env.action_space
