@@ -124,10 +124,13 @@ def test_mcap_logs_use_foxglove_schemas_and_match_frames(state_dataset):
             counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
             assert topics["/tf"] == ("foxglove.FrameTransforms", "protobuf")
             assert topics["/joint_states"] == ("foxglove.JointStates", "protobuf")
+            assert topics["/scene"] == ("foxglove.SceneUpdate", "protobuf")
             assert {"/action", "/reward", "/planner"} <= set(topics)
             n = m["length"]
-            # one state per dataset frame plus the state after the last step; one action and outcome per step
-            assert counts == {"/tf": n + 1, "/joint_states": n + 1, "/action": n, "/planner": n, "/reward": n}, counts
+            # one state per dataset frame plus the state after the last step; one action and outcome per step;
+            # the scene's geometry once
+            expected = {"/tf": n + 1, "/scene": 1, "/joint_states": n + 1, "/action": n, "/planner": n, "/reward": n}
+            assert counts == expected, counts
 
 
 def test_mcap_and_dataset_read_side_by_side(state_dataset):
@@ -173,7 +176,9 @@ def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan, capfd):
 
     with open(out / "mcap" / "episode_000000.mcap", "rb") as f:
         s = make_reader(f).get_summary()
-        assert any(c.topic == "/camera/base_camera" for c in s.channels.values())
+        topics = {c.topic: s.schemas[c.schema_id].name for c in s.channels.values()}
+        assert topics["/camera/base_camera"] == "foxglove.CompressedImage"
+        assert topics["/camera/base_camera/calibration"] == "foxglove.CameraCalibration"
 
 
 def test_two_workers_give_the_same_dataset_as_one(tmp_path):

@@ -180,8 +180,13 @@ def test_record_eval_and_mcap(tmp_path):
         for _, _, _, message in reader.iter_decoded_messages(topics=["/tf"]):
             frames.update(t.child_frame_id for t in message.transforms)
         f.seek(0)
+        ((_, _, _, scene),) = make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(["/scene"])
+        f.seek(0)
         phases = {json.loads(m.data)["phase"] for _, _, m in make_reader(f).iter_messages(topics=["/planner"])}
     assert {"cube", "goal", "panda_hand"} <= frames
+    # its cube shows in Foxglove's 3D panel, read from the scene like every task's bodies
+    (cube,) = [e for e in scene.entities if e.id == "cube"]
+    assert cube.frame_id == "cube" and [cube.cubes[0].size.x, cube.cubes[0].size.z] == pytest.approx([0.04, 0.04])
     assert {"approach", "descend", "push"} <= phases
 
     report_dir = tmp_path / "report"

@@ -1,14 +1,17 @@
 """Per-episode MCAP logs with Foxglove's well-known schemas, so Foxglove renders them as they are.
 
-Topics: `/tf` (FrameTransforms: every robot link, the TCP, task objects and goals, in the world frame),
-`/joint_states` (JointStates), `/camera/<name>` (CompressedImage, JPEG), and JSON channels `/action`,
-`/reward` (reward and success) and `/planner` (phase and TCP target).
+Topics: `/tf` (FrameTransforms, in the world frame: every robot link, the TCP, every body in the scene, the task's
+objects and goals, and each camera's optical frame), `/scene` (SceneUpdate: each body's collision geometry as an
+entity attached to its `/tf` frame, sent once at time 0, see `scene_geometry`), `/joint_states` (JointStates),
+`/camera/<name>` (CompressedImage, JPEG) with `/camera/<name>/calibration` (CameraCalibration, once at time 0),
+and JSON channels `/action`, `/reward` (reward and success) and `/planner` (phase and TCP target).
 
 Times match the dataset's: frame k of an episode has timestamp k * dt, and so do the state the policy saw
 (`/tf`, `/joint_states`, `/camera/*`) and the action executed in it (`/action`: the dataset's `executed_action`;
 `/planner`). The reward and success the step earned (`next.reward`, `next.success`) are stamped (k + 1) * dt,
-when they arrive, and the state after the last step is logged too (one more than the dataset's frames). Every
-channel numbers its messages from 0 (`sequence`).
+when they arrive, and the state after the last step is logged too (one more than the dataset's frames). The
+scene's geometry and the camera calibrations do not change within an episode: they are logged once, at time 0.
+Every channel numbers its messages from 0 (`sequence`).
 """
 
 from __future__ import annotations
@@ -19,11 +22,13 @@ from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.JointState_pb2 import JointState
 from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import register_schema
@@ -58,8 +63,9 @@ class EpisodeMcap:
         self._writer.start(profile="", library="kitbench")
         self._jpeg_quality = jpeg_quality
         self._channels: dict[str, int] = {}
-        proto = {"/tf": FrameTransforms, "/joint_states": JointStates}
-        proto.update({f"/camera/{c}": CompressedImage for c in cameras})
+        proto = {"/tf": FrameTransforms, "/scene": SceneUpdate, "/joint_states": JointStates}
+        for c in cameras:
+            proto.update({f"/camera/{c}": CompressedImage, f"/camera/{c}/calibration": CameraCalibration})
         for topic, cls in proto.items():
             schema = register_schema(self._writer, cls)
             self._channels[topic] = self._writer.register_channel(topic, "protobuf", schema)
@@ -72,6 +78,26 @@ class EpisodeMcap:
         sequence = self.messages[topic]
         self._writer.add_message(self._channels[topic], log_time=t_ns, publish_time=t_ns, data=data, sequence=sequence)
         self.messages[topic] = sequence + 1
+
+    def log_scene(self, t_ns: int, scene: SceneUpdate) -> None:
+        """The scene's geometry (`scene_geometry.scene_update`), sent once: its entities never expire and follow
+        their `/tf` frames, and Foxglove replays a topic's last message when it seeks."""
+        stamp = _stamp(t_ns)
+        for entity in scene.entities:
+            entity.timestamp.CopyFrom(stamp)
+        self._write("/scene", scene.SerializeToString(), t_ns)
+
+    def log_calibration(self, t_ns: int, camera: str, intrinsic: np.ndarray, width: int, height: int) -> None:
+        """A pinhole camera without distortion whose images carry frame id `camera` (its optical frame in `/tf`)."""
+        k = np.asarray(intrinsic, dtype=np.float64).reshape(3, 3)
+        p = np.hstack([k, np.zeros((3, 1))])
+        msg = CameraCalibration(timestamp=_stamp(t_ns), frame_id=camera, width=width, height=height)
+        msg.distortion_model = "plumb_bob"
+        msg.D.extend([0.0] * 5)
+        msg.K.extend(float(v) for v in k.ravel())
+        msg.R.extend(float(v) for v in np.eye(3).ravel())
+        msg.P.extend(float(v) for v in p.ravel())
+        self._write(f"/camera/{camera}/calibration", msg.SerializeToString(), t_ns)
 
     def log_state(
         self,

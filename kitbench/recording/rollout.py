@@ -21,6 +21,7 @@ import numpy as np
 from kitbench.geometry import matrix_to_quat
 from kitbench.recording.mcap_log import EpisodeMcap
 from kitbench.recording.noise import ActionNoise
+from kitbench.recording.scene_geometry import Body, optical_frame, scene_bodies, scene_update
 
 
 @dataclass
@@ -51,10 +52,17 @@ def task_config(u) -> dict:
     return {"control_mode": u.control_mode, "obs_mode": u.obs_mode, **u.episode_config()}
 
 
-def _world_frames(u) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The robot's links and the task's tracked frames (objects, goals), world poses."""
+def _world_frames(u, bodies: list[Body], obs) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """World poses: the robot's links, the task's tracked frames (objects, goals), every body the scene
+    geometry is attached to and each camera's optical frame. Static bodies (the table, a kit's seated shapes) are
+    logged every step like the rest, so that any one `/tf` message places the whole scene: ~170 bytes for a
+    LiftPegUpright episode's table."""
     frames = {link.name: (link.entity_pose.p, link.entity_pose.q) for link in u.robot.articulation.links}
     frames.update(u.tracked_frames())
+    for body in bodies:
+        frames.setdefault(body.frame, body.pose())
+    for c in u.camera_names:
+        frames[c] = optical_frame(obs["sensor_param"][c]["extrinsic_cv"])
     return frames
 
 
@@ -63,9 +71,24 @@ def _camera_images(u, obs) -> dict[str, np.ndarray]:
     return {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names}
 
 
-def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, images) -> None:
+def _log_scene(log: EpisodeMcap, u, obs) -> list[Body]:
+    """At time 0: the geometry of the scene this episode built, and each camera's calibration."""
+    bodies = scene_bodies(u.scene)
+    log.log_scene(0, scene_update(bodies))
+    for c in u.camera_names:
+        height, width = obs["sensor_data"][c]["rgb"].shape[:2]
+        log.log_calibration(0, c, obs["sensor_param"][c]["intrinsic_cv"], width, height)
+    return bodies
+
+
+def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, bodies: list[Body], obs) -> None:
     log.log_state(
-        t_ns, frames=_world_frames(u), joint_names=joint_names, qpos=u.robot.qpos(), qvel=u.robot.qvel(), images=images
+        t_ns,
+        frames=_world_frames(u, bodies, obs),
+        joint_names=joint_names,
+        qpos=u.robot.qpos(),
+        qvel=u.robot.qvel(),
+        images=_camera_images(u, obs),
     )
 
 
@@ -87,6 +110,7 @@ def run_episode(
     joint_names = [j.name for j in u.robot.articulation.active_joints]
     dt_ns = round(1e9 * u.control_timestep)
     try:
+        bodies = _log_scene(log, u, obs) if log is not None else []
         step = 0
         while True:
             frame = {
@@ -97,7 +121,7 @@ def run_episode(
             for c, rgb in images.items():
                 frame[f"observation.images.{c}"] = rgb
             if log is not None:
-                _log_state(log, u, step * dt_ns, joint_names, images)
+                _log_state(log, u, step * dt_ns, joint_names, bodies, obs)
             action = np.clip(np.asarray(policy.act(obs), dtype=np.float32), u.action_space.low, u.action_space.high)
             # no noise once the task is done: settling shows the finished state held, which LiftPegUpright's
             # 2 mm height tolerance does not survive at 0.01 rad of joint noise (1 of 20 episodes stayed a success)
@@ -125,7 +149,7 @@ def run_episode(
             if terminated or truncated:
                 break
         if log is not None:  # the state the last action led to (the dataset has no frame for it)
-            _log_state(log, u, step * dt_ns, joint_names, _camera_images(u, obs))
+            _log_state(log, u, step * dt_ns, joint_names, bodies, obs)
     finally:
         if log is not None:
             log.close()
