@@ -54,7 +54,7 @@ def run_seeds(args: tuple[list[int], str]) -> list[Episode]:
         steps, terminated, truncated = 0, False, False
         while not (terminated or truncated):
             target = planner.act(obs)  # pd_joint_pos targets, expressed in the env's mode
-            obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:7], float(target[7])))
+            obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
             steps += 1
         success = bool(info["success"])
         episodes.append(

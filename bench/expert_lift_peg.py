@@ -53,7 +53,7 @@ def run_episode(env, planner: LiftPegUprightPlanner, seed: int) -> Episode:
     terminated = truncated = False
     while not (terminated or truncated):
         target = planner.act(obs)
-        obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:7], float(target[7])))
+        obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
         steps += 1
     success = bool(info["success"])
     category = "success" if success else failure_category(planner, info)

@@ -1,8 +1,8 @@
 """Environment throughput benchmark: `make bench` (or `python bench/run.py [--task T]`).
 
-Prints, per task, env steps/s with state observations in two control modes, with rgb observations, reset/s,
-and the raw PhysX rate of the same scene (robot, table and task objects stepped with no Python in between), all
-measured in one run so the ratios are meaningful on a shared machine.
+Prints, per task and robot (LiftPegUpright: Panda and Fetch), env steps/s with state observations in two control
+modes, with rgb observations, reset/s, and the raw PhysX rate of the same scene (robot, table and task objects
+stepped with no Python in between), all measured in one run so the ratios are meaningful on a shared machine.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ def env_steps_per_second(task: str, seconds: float, **kwargs) -> float:
     return rate
 
 
-def resets_per_second(task: str, seconds: float) -> float:
-    env = gym.make(f"kitbench/{task}").unwrapped
+def resets_per_second(task: str, seconds: float, **kwargs) -> float:
+    env = gym.make(f"kitbench/{task}", **kwargs).unwrapped
     n, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
         env.reset(seed=n)
@@ -46,10 +46,10 @@ def resets_per_second(task: str, seconds: float) -> float:
     return n / (time.perf_counter() - start)
 
 
-def raw_physx_substeps_per_second(task: str, seconds: float, sleep_threshold: float = 0.0) -> float:
+def raw_physx_substeps_per_second(task: str, seconds: float, sleep_threshold: float = 0.0, **kwargs) -> float:
     """The scene stepped with no Python in between. With a sleep threshold the robot, at rest and undriven,
     falls asleep and PhysX skips it: that is how a "raw" rate of an idle scene is usually quoted."""
-    env = gym.make(f"kitbench/{task}", sim_config=SimConfig(sleep_threshold=sleep_threshold)).unwrapped
+    env = gym.make(f"kitbench/{task}", sim_config=SimConfig(sleep_threshold=sleep_threshold), **kwargs).unwrapped
     env.reset(seed=0)
     scene = env.scene
     n, start = 0, time.perf_counter()
@@ -60,22 +60,25 @@ def raw_physx_substeps_per_second(task: str, seconds: float, sleep_threshold: fl
     return n / (time.perf_counter() - start)
 
 
-def bench_task(task: str, seconds: float, rgb: bool) -> None:
+def bench_task(task: str, seconds: float, rgb: bool, robot: str) -> None:
     substeps = SimConfig().substeps
-    raw = raw_physx_substeps_per_second(task, seconds)
+    on = {"robot_uids": robot}
+    raw = raw_physx_substeps_per_second(task, seconds, **on)
     raw_control = raw / substeps
-    raw_sleeping = raw_physx_substeps_per_second(task, seconds, sleep_threshold=0.005)
+    raw_sleeping = raw_physx_substeps_per_second(task, seconds, sleep_threshold=0.005, **on)
     rows = [
-        ("state, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="state")),
+        ("state, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="state", **on)),
         (
             "state, pd_ee_delta_pose",
-            env_steps_per_second(task, seconds, obs_mode="state", control_mode="pd_ee_delta_pose"),
+            env_steps_per_second(task, seconds, obs_mode="state", control_mode="pd_ee_delta_pose", **on),
         ),
     ]
     if rgb:
-        rows.append(("rgb 128x128, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="rgb")))
-    reset_rate = resets_per_second(task, seconds)
-    print(f"{task}  (sim {SimConfig().sim_freq} Hz, control {SimConfig().control_freq} Hz, {substeps} substeps)")
+        rows.append(("rgb 128x128, pd_joint_delta_pos", env_steps_per_second(task, seconds, obs_mode="rgb", **on)))
+    reset_rate = resets_per_second(task, seconds, **on)
+    print(
+        f"{task} · {robot}  (sim {SimConfig().sim_freq} Hz, control {SimConfig().control_freq} Hz, {substeps} substeps)"
+    )
     print(f"  raw PhysX: {raw:,.0f} substeps/s = {raw_control:,.0f} control steps/s")
     print(
         f"  raw PhysX, idle bodies asleep (sleep threshold 0.005): {raw_sleeping:,.0f} substeps/s = "
@@ -87,7 +90,7 @@ def bench_task(task: str, seconds: float, rgb: bool) -> None:
             f"env/raw asleep = {rate / (raw_sleeping / substeps):5.1%}"
         )
     print(f"  {'reset(seed)':<34} {reset_rate:8,.0f} resets/s")
-    if task in REFERENCE:
+    if task in REFERENCE and robot == "panda":
         print(f"  reference framework on this machine kind: {REFERENCE[task]}")
 
 
@@ -98,7 +101,8 @@ def main() -> None:
     parser.add_argument("--no-rgb", action="store_true", help="skip the rendering figures (no Vulkan device)")
     args = parser.parse_args()
     for task in args.task or list(kitbench.TASKS):
-        bench_task(task, args.seconds, rgb=not args.no_rgb)
+        for robot in kitbench.TASKS[task].env_class.supported_robots:
+            bench_task(task, args.seconds, rgb=not args.no_rgb, robot=robot)
 
 
 if __name__ == "__main__":

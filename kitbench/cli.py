@@ -63,6 +63,7 @@ def _record(args) -> int:
         "executor": args.executor,
         "ray_address": args.ray_address,
         "shard_episodes": args.shard_episodes,
+        "robot": args.robot,
     }
     try:
         if args.recipe:
@@ -116,7 +117,12 @@ def eval_config_from_args(args):
     from kitbench.evaluation.runner import EvalConfig
     from kitbench.evaluation.suite import DEFAULT_FIRST_SEED, adhoc_suite, load_suite
 
-    modes = {"obs_mode": args.obs_mode, "control_mode": args.control_mode, "reward_mode": args.reward_mode}
+    modes = {
+        "obs_mode": args.obs_mode,
+        "control_mode": args.control_mode,
+        "reward_mode": args.reward_mode,
+        "robot": args.robot,
+    }
     explicit = frozenset(k for k, v in modes.items() if v is not None)
     if args.suite:
         if args.seed is not None:
@@ -234,6 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--seed", type=int, help="first seed, >= 0 (default 0); episode k uses seed + k")
     rec.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd")
     rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
+    rec.add_argument("--robot", help="the robot (LiftPegUpright: panda (default) or fetch); stored with the recording")
     rec.add_argument("--policy", help="expert (default), random or zero")
     rec.add_argument("--only-success", dest="only_success", action="store_true", help="store successful episodes only")
     rec.add_argument(
@@ -332,6 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="default pd_joint_delta_pos, or the mode a lerobot/replay policy was trained in",
     )
     ev.add_argument("--reward-mode", dest="reward_mode", help="reward summed into returns (default dense)")
+    ev.add_argument("--robot", help="the robot (default: the suite's, else the task's first: panda)")
     ev.add_argument(
         "--settle-steps",
         dest="settle_steps",

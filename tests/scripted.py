@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitbench.control.kinematics import PandaKinematics
+from kitbench.control.kinematics import ArmKinematics
 from kitbench.geometry import pose_to_matrix
 
 
@@ -12,7 +12,7 @@ class WaypointFollower:
     def __init__(self, env):
         self.env = env.unwrapped
         assert self.env.control_mode == "pd_joint_pos"
-        self.kin = PandaKinematics()
+        self.kin = ArmKinematics(self.env.robot_spec)
         self.base = pose_to_matrix(self.env.robot.base_pose.p, self.env.robot.base_pose.q)
         self.base_inv = np.linalg.inv(self.base)
         self.last = None

@@ -11,10 +11,11 @@ import numpy as np
 import sapien
 
 import kitbench
-from kitbench.control.kinematics import PandaKinematics, panda_model
+from kitbench.control.kinematics import ArmKinematics, arm_model
 from kitbench.geometry import look_at, pose_to_matrix
 from kitbench.robots.assets import panda_urdf_path
-from kitbench.robots.panda import READY_ARM_QPOS, ROBOTS, Panda
+from kitbench.robots import ROBOTS, Robot
+from kitbench.robots.panda import READY_ARM_QPOS
 from kitbench.sim.scene import SimConfig, create_scene
 
 KITBENCH = [sys.executable, "-m", "kitbench.cli"]
@@ -50,7 +51,7 @@ def test_panda_scene_renders_a_non_blank_image(needs_vulkan):
     scene = create_scene(SimConfig(), render=True)
     scene.set_ambient_light([0.4, 0.4, 0.4])
     scene.add_directional_light([0, 1, -1], [1, 1, 1])
-    robot = Panda(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=True)
+    robot = Robot(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=True)
     robot.reset(READY_ARM_QPOS)
     camera = scene.add_camera("c", 128, 128, 1.0, 0.01, 10)
     p, q = look_at([1.2, 0.0, 0.6], [0.0, 0.0, 0.4])
@@ -64,7 +65,7 @@ def test_panda_scene_renders_a_non_blank_image(needs_vulkan):
 
 
 def test_mujoco_compiles_the_same_urdf_with_hand_and_tcp_bodies():
-    model = panda_model()
+    model = arm_model(ROBOTS["panda"])
     bodies = {model.body(i).name for i in range(model.nbody)}
     assert {"panda_link7", "panda_hand", "panda_hand_tcp", "panda_leftfinger"} <= bodies
     assert model.nq == 9
@@ -74,8 +75,8 @@ def test_mujoco_compiles_the_same_urdf_with_hand_and_tcp_bodies():
 def test_mujoco_and_sapien_agree_on_the_tcp_pose():
     """Controller, planner and simulator share one kinematic model: FK must match to the micrometre."""
     scene = create_scene(SimConfig(), render=False)
-    robot = Panda(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=False)
-    kin = PandaKinematics()
+    robot = Robot(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=False)
+    kin = ArmKinematics(ROBOTS["panda"])
     rng = np.random.default_rng(0)
     for _ in range(10):
         q = rng.uniform(robot.arm_limits[:, 0], robot.arm_limits[:, 1])
@@ -89,7 +90,7 @@ def test_mujoco_and_sapien_agree_on_the_tcp_pose():
 def test_panda_has_no_self_contacts_at_rest():
     """Hand and wrist links overlap by design; a contact between them would fight the solver every step."""
     scene = create_scene(SimConfig(), render=False)
-    robot = Panda(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=False)
+    robot = Robot(scene, ROBOTS["panda"], sapien.Pose([0, 0, 0]), render=False)
     rng = np.random.default_rng(1)
     for q in [READY_ARM_QPOS, *rng.uniform(robot.arm_limits[:, 0], robot.arm_limits[:, 1], (5, 7))]:
         robot.reset(q)

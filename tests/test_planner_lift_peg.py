@@ -19,7 +19,8 @@ from kitbench.planning.poses import (
     rot_z,
     rotation_angle,
 )
-from kitbench.planning.timing import ARM_MAX_VELOCITY, time_parametrize
+from kitbench.planning.timing import time_parametrize
+from kitbench.robots.panda import ARM_VELOCITY_LIMITS
 from kitbench.sim.scene import set_actor_pose
 
 SEEDS = list(range(10))  # solved in 26-31 steps when measured; the budget is 50
@@ -93,7 +94,7 @@ def test_phases_targets_and_joint_speeds(env, planner):
     assert np.linalg.norm(target[:3, 3] - tcp.p) < 0.01
     q = np.vstack([q0[0], actions[:, :7].astype(np.float64)])
     speed = np.abs(np.diff(q, axis=0)) / u.control_timestep
-    assert np.all(speed <= ARM_MAX_VELOCITY * 1.01)
+    assert np.all(speed <= np.asarray(ARM_VELOCITY_LIMITS) * 1.01)
 
 
 def test_missed_grasp_is_retried(env, planner):

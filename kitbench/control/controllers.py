@@ -37,7 +37,7 @@ from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 
 if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never need
-    from kitbench.control.kinematics import PandaKinematics
+    from kitbench.control.kinematics import ArmKinematics
 
 # the modes whose action changes the measured state / the previous target
 MEASURED_DELTA_MODES = ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
@@ -68,18 +68,27 @@ class Controller:
     mode: str
     action_space: spaces.Box
 
-    def __init__(self, arm_limits: np.ndarray, kinematics_factory: Callable[[], PandaKinematics]) -> None:
+    def __init__(self, arm_limits: np.ndarray, kinematics_factory: Callable[[], ArmKinematics]) -> None:
         self.arm_limits = arm_limits
         self._kinematics_factory = kinematics_factory
-        self._kinematics: PandaKinematics | None = None
+        self._kinematics: ArmKinematics | None = None
+        self._body: np.ndarray | None = None  # where the joints outside the arm stand (set_body)
         self._joint_target: np.ndarray | None = None  # (7,) last arm joint target, set by reset()
         self.tcp_target: np.ndarray | None = None  # 4x4 base-frame TCP target of end-effector modes
 
     @property
-    def kinematics(self) -> PandaKinematics:
+    def kinematics(self) -> ArmKinematics:
         if self._kinematics is None:  # built on first use: joint modes never pay for MuJoCo
             self._kinematics = self._kinematics_factory()
+            if self._body is not None:
+                self._kinematics.set_body(self._body)
         return self._kinematics
+
+    def set_body(self, body_qpos: np.ndarray) -> None:
+        """The measured positions of the robot's body joints (a torso), which the arm's kinematics stand on."""
+        self._body = np.asarray(body_qpos, dtype=np.float64)
+        if self._kinematics is not None:
+            self._kinematics.set_body(self._body)
 
     @property
     def joint_target(self) -> np.ndarray:
@@ -116,7 +125,8 @@ class JointDeltaPos(Controller):
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
-        self.action_space = _box(np.full(7, -0.1), np.full(7, 0.1))
+        n = len(arm_limits)
+        self.action_space = _box(np.full(n, -0.1), np.full(n, 0.1))
 
     def arm_targets(self, arm_action, arm_qpos):
         self.joint_target = self._clip_to_limits(arm_qpos + arm_action)
@@ -201,9 +211,12 @@ class EETargetDeltaPose(EEDeltaPose):
 class EEPose(Controller):
     mode = "pd_ee_pose"
 
-    def __init__(self, arm_limits, kinematics_factory):
+    def __init__(self, arm_limits, kinematics_factory, position_bound: float = 1.0):
+        """`position_bound`: the position box (m) around the base frame's origin; wider for a robot whose base
+        frame is far from its workspace (Fetch's is on the floor, its TCP up to ~1.4 m above it)."""
         super().__init__(arm_limits, kinematics_factory)
-        self.action_space = _box([-1, -1, -1, -np.pi, -np.pi, -np.pi], [1, 1, 1, np.pi, np.pi, np.pi])
+        b = position_bound
+        self.action_space = _box([-b, -b, -b, -np.pi, -np.pi, -np.pi], [b, b, b, np.pi, np.pi, np.pi])
 
     def arm_targets(self, arm_action, arm_qpos):
         target = np.eye(4)
@@ -233,7 +246,14 @@ _CONTROLLERS = {
 CONTROL_MODES = tuple(_CONTROLLERS)
 
 
-def make_controller(mode: str, arm_limits: np.ndarray, kinematics_factory: Callable[[], PandaKinematics]) -> Controller:
+def make_controller(
+    mode: str,
+    arm_limits: np.ndarray,
+    kinematics_factory: Callable[[], ArmKinematics],
+    position_bound: float = 1.0,
+) -> Controller:
     if mode not in _CONTROLLERS:
         raise KitbenchError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
+    if mode == EEPose.mode:
+        return EEPose(arm_limits, kinematics_factory, position_bound)
     return _CONTROLLERS[mode](arm_limits, kinematics_factory)

@@ -1,72 +1,93 @@
-"""Panda kinematics on MuJoCo, with inverse kinematics solved by mink.
+"""A robot's arm kinematics on MuJoCo, with inverse kinematics solved by mink.
 
-The MuJoCo model is compiled from the same URDF SAPIEN simulates, so a pose solved here is the pose the
-simulated robot reaches. Poses are in the robot's base frame.
+The MuJoCo model is compiled from the same URDF SAPIEN simulates (`RobotSpec.mujoco_urdf`), so a pose solved
+here is the pose the simulated robot reaches. Poses are in the robot's base frame (`RobotSpec.base_link`); the
+joints outside the arm (fingers, a head or torso, a mobile base) are held where `set_body` last put them.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 
 import mink
 import mujoco
 import numpy as np
 
-from kitbench.robots.assets import panda_mujoco_urdf
-from kitbench.robots.panda import ARM_JOINTS, READY_ARM_QPOS, TCP_LINK
-
-ARM_VELOCITY_LIMITS = {
-    "panda_joint1": 2.175,
-    "panda_joint2": 2.175,
-    "panda_joint3": 2.175,
-    "panda_joint4": 2.175,
-    "panda_joint5": 2.61,
-    "panda_joint6": 2.61,
-    "panda_joint7": 2.61,
-}
+from kitbench.geometry import pose_to_matrix
+from kitbench.robots.spec import RobotSpec
 
 
 @functools.cache
-def panda_model() -> mujoco.MjModel:
-    model = mujoco.MjModel.from_xml_string(panda_mujoco_urdf())
-    names = [model.joint(i).name for i in range(model.njnt)]
-    if names[:7] != list(ARM_JOINTS):  # pragma: no cover - guards the joint order we rely on
-        raise RuntimeError(f"unexpected MuJoCo joint order {names}")
+def _compiled(source: Callable[[], str]) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(source())
+
+
+def arm_model(spec: RobotSpec) -> mujoco.MjModel:
+    """The robot's MuJoCo model, compiled once per process."""
+    model = _compiled(spec.mujoco_urdf)  # variants of a robot share their model
+    missing = [j for j in spec.arm_joints if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) < 0]
+    if missing:  # pragma: no cover - guards the joint names we rely on
+        raise RuntimeError(f"{spec.uid}: the MuJoCo model has no joint(s) {missing}")
     return model
 
 
-class PandaKinematics:
-    """Forward kinematics and mink differential IK for the Panda's TCP.
+def arm_joint_limits(spec: RobotSpec) -> np.ndarray:
+    """(n, 2) position limits of the arm's joints (continuous joints: +-inf)."""
+    model = arm_model(spec)
+    limits = []
+    for name in spec.arm_joints:
+        j = model.joint(name)
+        limits.append(j.range if j.limited else (-np.inf, np.inf))
+    return np.array(limits, dtype=np.float64)
 
-    IK minimises TCP pose error plus a light posture term (keeps solutions near the ready pose, away from
-    the elbow flips a pure pose task drifts into), under joint position and velocity limits; fingers are frozen.
+
+class ArmKinematics:
+    """Forward kinematics and mink differential IK for a robot's TCP.
+
+    IK minimises TCP pose error plus a light posture term (keeps solutions near the ready pose, away from the
+    elbow flips a pure pose task drifts into), under joint position and velocity limits; every joint outside the
+    arm is frozen.
     """
 
-    def __init__(self, posture_cost: float = 1e-3, dt: float = 0.05, max_iterations: int = 30):
-        self.model = panda_model()
+    def __init__(self, spec: RobotSpec, posture_cost: float = 1e-3, dt: float = 0.05, max_iterations: int = 30):
+        self.spec = spec
+        self.model = arm_model(spec)
         self.configuration = mink.Configuration(self.model)
         self.dt = dt
         self.max_iterations = max_iterations
-        self.tcp_task = mink.FrameTask(TCP_LINK, "body", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3)
+        self._arm_adr = np.array([self.model.joint(n).qposadr[0] for n in spec.arm_joints])
+        arm_dofs = {int(self.model.joint(n).dofadr[0]) for n in spec.arm_joints}
+        self._q = self.configuration.q.copy()
+        for name in spec.finger_joints:
+            self._q[self.model.joint(name).qposadr[0]] = spec.finger_open
+        self.set_body(spec.body_ready)
+        self._offset = pose_to_matrix(*spec.tcp_offset)
+        self._offset_inv = np.linalg.inv(self._offset)
+        self.tcp_task = mink.FrameTask(spec.tcp_link, "body", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3)
         self.posture_task = mink.PostureTask(self.model, cost=posture_cost)
-        q_ref = np.zeros(self.model.nq)
-        q_ref[:7] = READY_ARM_QPOS
-        q_ref[7:9] = 0.04
+        q_ref = self._q.copy()
+        q_ref[self._arm_adr] = spec.ready_arm_qpos
         self.posture_task.set_target(q_ref)
-        self.limits = [mink.ConfigurationLimit(self.model), mink.VelocityLimit(self.model, ARM_VELOCITY_LIMITS)]
-        self.constraints = [mink.DofFreezingTask(self.model, dof_indices=[7, 8])]
-        self._body_id = self.model.body(TCP_LINK).id
-        self._q = np.zeros(self.model.nq)
+        velocity = dict(zip(spec.arm_joints, spec.arm_velocity_limits, strict=True))
+        self.limits = [mink.ConfigurationLimit(self.model), mink.VelocityLimit(self.model, velocity)]
+        frozen = [d for d in range(self.model.nv) if d not in arm_dofs]
+        self.constraints = [mink.DofFreezingTask(self.model, dof_indices=frozen)] if frozen else []
+
+    def set_body(self, body_qpos) -> None:
+        """Where the joints outside the arm and fingers stand (a torso's height changes where the arm reaches)."""
+        for name, value in zip(self.spec.body_joints, body_qpos, strict=True):
+            self._q[self.model.joint(name).qposadr[0]] = value
 
     def _load(self, arm_qpos) -> None:
-        self._q[:7] = arm_qpos
-        self._q[7:9] = 0.04
+        self._q[self._arm_adr] = arm_qpos
         self.configuration.update(self._q)
 
     def tcp_pose(self, arm_qpos) -> np.ndarray:
         """4x4 TCP pose in the base frame."""
         self._load(arm_qpos)
-        return self.configuration.get_transform_frame_to_world(TCP_LINK, "body").as_matrix()
+        body = self.configuration.get_transform_frame_to_world(self.spec.tcp_link, "body").as_matrix()
+        return body @ self._offset
 
     def solve(
         self,
@@ -78,7 +99,7 @@ class PandaKinematics:
     ) -> tuple[np.ndarray, bool]:
         """Arm joint positions reaching the 4x4 TCP target from `arm_qpos_init`; returns (qpos, converged)."""
         self._load(arm_qpos_init)
-        self.tcp_task.set_target(mink.SE3.from_matrix(target))
+        self.tcp_task.set_target(mink.SE3.from_matrix(target @ self._offset_inv))
         tasks = [self.tcp_task, self.posture_task]
         converged = False
         previous = np.inf
@@ -101,4 +122,4 @@ class PandaKinematics:
                 constraints=self.constraints,
             )
             self.configuration.integrate_inplace(velocity, self.dt)
-        return self.configuration.q[:7].copy(), converged
+        return self.configuration.q[self._arm_adr].copy(), converged

@@ -7,15 +7,12 @@ Shapes follow LeRobot's dataset convention: images (height, width, channels).
 
 from __future__ import annotations
 
-from kitbench.envs.tabletop import POSE_NAMES, ROBOT_STATE_NAMES
+from kitbench.envs.tabletop import POSE_NAMES
 
-__all__ = ["ACTION_NAMES", "POSE_NAMES", "action_feature", "observation_features", "vector"]
-from kitbench.robots.panda import ARM_JOINTS
+__all__ = ["POSE_NAMES", "action_feature", "action_names", "observation_features", "vector"]
 
-ACTION_NAMES = {
-    "pd_joint_delta_pos": [f"delta_{j}" for j in ARM_JOINTS],
-    "pd_joint_target_delta_pos": [f"delta_{j}" for j in ARM_JOINTS],
-    "pd_joint_pos": list(ARM_JOINTS),
+# The arm part of each end-effector mode's action; joint modes name the robot's arm joints (`action_names`).
+EE_ACTION_NAMES = {
     "pd_ee_delta_pos": ["dx", "dy", "dz"],
     "pd_ee_target_delta_pos": ["dx", "dy", "dz"],
     "pd_ee_delta_pose": ["dx", "dy", "dz", "drx", "dry", "drz"],
@@ -35,7 +32,7 @@ def observation_features(env, images: bool | None = None) -> dict[str, dict]:
     """`observation.state`, `observation.environment_state` and, with `images` (default: when the env's
     observations have cameras), one `observation.images.<camera>` per camera of the task's image modes."""
     u = env.unwrapped
-    features = {STATE: vector(ROBOT_STATE_NAMES), ENVIRONMENT_STATE: vector(u.environment_state_names())}
+    features = {STATE: vector(u.robot_state_names), ENVIRONMENT_STATE: vector(u.environment_state_names())}
     if images is None:
         images = bool(u.camera_names)
     if images:
@@ -48,7 +45,21 @@ def observation_features(env, images: bool | None = None) -> dict[str, dict]:
     return features
 
 
-def action_feature(env) -> dict:
-    """The action vector: the arm part of the env's control mode, then the gripper."""
+def action_names(env) -> list[str]:
+    """One name per action entry: the arm part of the env's control mode, the gripper, then the robot's body
+    joint deltas and base velocities (`kitbench.robots.spec`)."""
     u = env.unwrapped
-    return vector([*ACTION_NAMES[u.control_mode], "gripper"])
+    spec = u.robot_spec
+    mode = u.control_mode
+    if mode in EE_ACTION_NAMES:
+        arm = EE_ACTION_NAMES[mode]
+    elif mode == "pd_joint_pos":
+        arm = list(spec.arm_joints)
+    else:  # joint delta modes
+        arm = [f"delta_{j}" for j in spec.arm_joints]
+    return [*arm, "gripper", *spec.extra_action_names]
+
+
+def action_feature(env) -> dict:
+    """The action vector (`action_names`)."""
+    return vector(action_names(env))

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import copy
+import functools
 import importlib
 from collections.abc import Mapping
 from typing import Any, ClassVar
@@ -26,19 +27,17 @@ import sapien
 from gymnasium import spaces
 
 from kitbench.control.controllers import CONTROL_MODES, make_controller
-from kitbench.control.kinematics import PandaKinematics
+from kitbench.control.kinematics import ArmKinematics, arm_joint_limits
 from kitbench.envs.grasp import GraspHistory
 from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, REWARD_MODES
 from kitbench.envs.observations import flatten_state, pose7, space_for
 from kitbench.errors import KitbenchError, check_choice
 from kitbench.perturbations import Perturbations
-from kitbench.robots.panda import ARM_JOINTS, READY_ARM_QPOS, ROBOTS, Panda, gripper_action_to_target
+from kitbench.robots import ROBOTS, Robot, RobotSpec
+from kitbench.robots.robot import GROUND_FREE_BIT
 from kitbench.sim.cameras import Camera, CameraSpec
 from kitbench.sim.scene import SimConfig, add_table_and_ground, create_scene
 
-ROBOT_BASE = sapien.Pose([-0.615, 0.0, 0.0])
-# LeRobot's `observation.state`: what a real Panda reports of itself, no simulator-only quantities.
-ROBOT_STATE_NAMES = (*ARM_JOINTS, "gripper_opening")
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
 # Faster than this (m/s), a task's object has been thrown by a solver failure rather than by the robot. The most
 # violent play there is, uniform random absolute joint targets (pd_joint_pos), throws the peg at up to 10.1 m/s
@@ -51,7 +50,7 @@ MAX_BODY_SPEED = 25.0
 
 
 class TabletopEnv(gym.Env, abc.ABC):
-    """A Panda at a table, one task's objects, PhysX CPU, optional cameras."""
+    """A robot at a table, one task's objects, PhysX CPU, optional cameras."""
 
     # gymnasium declares `metadata` as an instance attribute; each env copies it with its own render_fps
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
@@ -78,8 +77,9 @@ class TabletopEnv(gym.Env, abc.ABC):
     # `object_scale` perturbation is refused by tasks that do not.
     supports_object_scale: ClassVar[bool] = False
     # The task's scripted expert: its class, or "module:Class" (as gymnasium's entry points), which keeps the
-    # planner's module, which needs the task's geometry, from being imported by the task's own module.
-    expert: ClassVar[str | type | None] = None
+    # planner's module, which needs the task's geometry, from being imported by the task's own module; or a dict
+    # of them by robot uid, for a task whose robots move too differently to share one.
+    expert: ClassVar[str | type | dict[str, str | type] | None] = None
     # The bodies `step` checks for a diverged simulation, collected at the first step in each scene.
     _watched: _WatchedBodies | None = None
 
@@ -121,12 +121,17 @@ class TabletopEnv(gym.Env, abc.ABC):
 
         # The scene and robot exist from the first reset (below) until close().
         self.scene: sapien.Scene
-        self.robot: Panda
+        self.robot: Robot
         self._robot_spec = ROBOTS[robot_uids]
-        self.controller = make_controller(control_mode, self._arm_limits(), PandaKinematics)
+        self.controller = make_controller(
+            control_mode,
+            self._arm_limits(),
+            functools.partial(ArmKinematics, self._robot_spec),
+            self._robot_spec.ee_position_bound,
+        )
         self._cameras: dict[str, Camera] = {}
         self._human_camera: Camera | None = None
-        self.action_space: spaces.Box = self.controller.action_space
+        self.action_space: spaces.Box = self._action_space()
         self.elapsed_steps = 0
         # Robustness perturbations (kitbench.perturbations), applied at the hooks below; their draws derive from
         # each episode's seed (reset(seed=None) draws a key from this generator, reseeded by every seed).
@@ -203,6 +208,13 @@ class TabletopEnv(gym.Env, abc.ABC):
         """The task's scripted expert for this env (planning `pd_joint_pos` targets: `reset(obs, info)`,
         `act(obs)`, `phase`, `tcp_target`), built from `expert`; None when the task has none."""
         entry = type(self).expert
+        if isinstance(entry, dict):  # one expert per robot
+            if self.robot_uid not in entry:
+                raise KitbenchError(
+                    f"task {self.task_id} has no expert for robot {self.robot_uid}; robots with one: "
+                    f"{', '.join(entry)}"
+                )
+            entry = entry[self.robot_uid]
         if entry is None:
             return None
         if isinstance(entry, str):
@@ -228,8 +240,9 @@ class TabletopEnv(gym.Env, abc.ABC):
             if seed is not None:
                 self._perturbation_keys = np.random.default_rng(seed)
             self.perturbations.start_episode(seed if seed is not None else int(self._perturbation_keys.integers(2**62)))
-        noise = rng.normal(0.0, self.robot_init_qpos_noise, 7) if self.robot_init_qpos_noise > 0 else 0.0
-        arm_qpos = self.perturbations.initial_qpos(READY_ARM_QPOS + noise)
+        ready = np.asarray(self._robot_spec.ready_arm_qpos)
+        noise = rng.normal(0.0, self.robot_init_qpos_noise, len(ready)) if self.robot_init_qpos_noise > 0 else 0.0
+        arm_qpos = self.perturbations.initial_qpos(ready + noise)
         self._build_world()
         self.robot.reset(arm_qpos)
         self.controller.reset(arm_qpos)
@@ -247,9 +260,7 @@ class TabletopEnv(gym.Env, abc.ABC):
         observation and info, and `info["physics_error"]` saying which body went wrong and how."""
         executed = self.perturbations.action(self._check_action(action), self)
         if executed is not None:  # None: a delayed action has not arrived yet, the drives keep their targets
-            arm_qpos = self.robot.qpos()[:7]
-            arm_targets = self.controller.arm_targets(executed[:-1].astype(np.float64), arm_qpos)
-            self.robot.set_targets(arm_targets, gripper_action_to_target(executed[-1]))
+            self._apply(executed)
         for _ in range(self.sim_config.substeps):
             self.scene.step()
         self.elapsed_steps += 1
@@ -293,11 +304,17 @@ class TabletopEnv(gym.Env, abc.ABC):
         from cached parses takes a few milliseconds.
         """
         self.scene = create_scene(self.sim_config, render=self._renders)
-        add_table_and_ground(self.scene, render=self._renders)
+        spec = self._robot_spec
+        add_table_and_ground(
+            self.scene,
+            render=self._renders,
+            near_edge=None if spec.table_clearance is None else spec.base_pose[0][0] + spec.table_clearance,
+            shared_bits=GROUND_FREE_BIT if spec.ground_free_links else 0,
+        )
         if self._renders:
             self.perturbations.lighting(self.scene)
-        base = self.perturbations.robot_base(ROBOT_BASE)
-        self.robot = Panda(self.scene, self._robot_spec, base, render=self._renders)
+        base = self.perturbations.robot_base(sapien.Pose(*self._robot_spec.base_pose))
+        self.robot = Robot(self.scene, self._robot_spec, base, render=self._renders)
         self._load_task(self.scene, self._renders)
         self._cameras, self._human_camera = {}, None
         if self.obs_mode in IMAGE_OBS_MODES:
@@ -332,12 +349,33 @@ class TabletopEnv(gym.Env, abc.ABC):
             return None
         return watched.describe()
 
-    @staticmethod
-    def _arm_limits() -> np.ndarray:
-        from kitbench.control.kinematics import panda_model
+    def _arm_limits(self) -> np.ndarray:
+        # a continuous joint (a wrist roll) gets +-2 pi: absolute targets beyond a turn mean nothing more
+        return np.clip(arm_joint_limits(self._robot_spec), -2 * np.pi, 2 * np.pi)
 
-        model = panda_model()
-        return np.array([model.jnt_range[i] for i in range(7)])
+    def _action_space(self) -> spaces.Box:
+        """The controller's arm part and gripper, then the robot's body joint deltas and base velocities."""
+        space = self.controller.action_space
+        low, high = self._robot_spec.extra_action_bounds()
+        if not len(low):
+            return space
+        return spaces.Box(np.concatenate([space.low, low]), np.concatenate([space.high, high]), dtype=np.float32)
+
+    def _apply(self, action: np.ndarray) -> None:
+        """Send one checked action to the drives: arm, gripper, body joints, base (module `kitbench.robots.spec`)."""
+        spec, robot = self._robot_spec, self.robot
+        n_arm = self.controller.action_space.shape[0] - 1
+        if spec.body_joints:
+            self.controller.set_body(robot.body_qpos())  # a torso's height moves where the arm reaches
+        arm_targets = self.controller.arm_targets(action[:n_arm].astype(np.float64), robot.arm_qpos())
+        robot.set_targets(arm_targets, spec.gripper_target(action[n_arm]))
+        extra = action[n_arm + 1 :].astype(np.float64)
+        n_body = len(spec.body_joints)
+        if n_body:
+            limits = robot.body_limits
+            robot.set_body_targets(np.clip(robot.body_targets() + extra[:n_body], limits[:, 0], limits[:, 1]))
+        if spec.has_base:
+            robot.set_base_velocity(extra[n_body], extra[n_body + 1], self.control_timestep)
 
     def _mount(self, spec: CameraSpec):
         if spec.mount is None:
@@ -364,6 +402,8 @@ class TabletopEnv(gym.Env, abc.ABC):
     def state_dict(self) -> dict:
         """The nested state observation: `agent` (qpos, qvel) and `extra` (tcp_pose and the task's fields)."""
         extra = {"tcp_pose": pose7(self.robot.tcp_pose())}
+        if self._robot_spec.has_base:  # where a mobile base has driven to (world)
+            extra["base_pose"] = pose7(self.robot.base_pose)
         extra.update(self.task_state())
         state = {
             "agent": {"qpos": self.robot.qpos().astype(np.float32), "qvel": self.robot.qvel().astype(np.float32)},
@@ -374,11 +414,21 @@ class TabletopEnv(gym.Env, abc.ABC):
         return state
 
     def robot_state(self) -> np.ndarray:
-        """LeRobot's `observation.state`: 7 arm joint positions and the gripper opening (sum of the two finger
-        joints, metres), named by `ROBOT_STATE_NAMES`."""
+        """LeRobot's `observation.state`, named by `robot_state_names`: the arm's joint positions, the gripper
+        opening (sum of the finger joints, metres), then any body joints and a mobile base's x, y, yaw: what a
+        real robot reports of itself, no simulator-only quantities."""
         # measured as the state observation is (with its noise, under an observation perturbation)
         q = self.state_dict()["agent"]["qpos"] if self.perturbations.changes_observations else self.robot.qpos()
-        return np.append(q[:7], q[7] + q[8]).astype(np.float32)
+        return self.robot.state_vector(q).astype(np.float32)
+
+    @property
+    def robot_state_names(self) -> tuple[str, ...]:
+        return self._robot_spec.state_names
+
+    @property
+    def robot_spec(self) -> RobotSpec:
+        """The robot this env runs (its joints, action layout and cameras)."""
+        return self._robot_spec
 
     def environment_state(self) -> np.ndarray:
         """Object and goal state as one float32 vector (see `environment_state_keys`)."""

@@ -44,7 +44,7 @@ SHORT_NAMES = {"fisher": "Fisher", "barnard": "Barnard", "mcnemar": "McNemar"}
 # What decides whether two reports measured the same thing (the suite's name, description and file do not).
 SUITE_FIELDS = ("task", "seeds", "obs_mode", "control_mode", "reward_mode")
 # Fields newer suites have, with the value an older report's suite had without them.
-SUITE_DEFAULTS = {"settle_steps": 0, "perturbations": {}}
+SUITE_DEFAULTS = {"settle_steps": 0, "perturbations": {}, "robot": None}
 BETTER, WORSE, NONE = "better", "worse", "none"
 
 

@@ -53,6 +53,15 @@ def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite
             f"evaluate it with --task {task}"
         )
     changes = {}
+    robot = needs.get("robot")
+    if robot is not None and robot != suite.robot_uid:
+        # an action means a joint target of one robot: never silently another robot's
+        if "robot" in explicit or suite.robot is not None:
+            raise KitbenchError(
+                f"policy {policy.name} was trained on robot {robot} but this evaluation runs {suite.robot_uid}; "
+                f"evaluate it with --robot {robot}"
+            )
+        changes["robot"] = robot
     control = needs.get("control_mode")
     if control is not None and control != suite.control_mode:
         # A suite's control mode is for policies that act in any mode (expert, baselines): success does not depend
@@ -293,10 +302,10 @@ def summary_lines(report: dict, out: Path) -> list[str]:
     lines = [
         (
             f"{report['task']} · {report['policy']} · {report['episodes']} episodes: success {s['rate']:.1%} "
-            f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%}; {report['headline']})"
+            f"(95% CI {s['ci95'][0]:.1%}–{s['ci95'][1]:.1%}; {report.get('headline', 'success_once')})"
         )
     ]
-    if report["headline"] == "success_at_end":
+    if report.get("headline") == "success_at_end":
         lines.append(f"  success_once: {report['success_once']['rate']:.1%}")
     for name, r in report["criteria"].items():
         lines.append(f"  {name}: {r['rate']:.1%}")

@@ -41,6 +41,7 @@ SUITE_KEYS = (
     "ray_address",
     "settle_steps",
     "perturbations",
+    "robot",
 )
 SUITE_TABLE = "suite"
 DEFAULT_FIRST_SEED = 1_000_000
@@ -56,6 +57,7 @@ class Suite:
     reward_mode: str = "dense"
     description: str = ""
     settle_steps: int = 0  # steps an episode runs on after its first success
+    robot: str | None = None  # the robot (`robot_uids`); None: the task's default
     # (name, levels) pairs; each level is one run of every seed under that perturbation
     perturbations: tuple[tuple[str, tuple[float, ...]], ...] = ()
     source: str | None = field(default=None, compare=False)  # the file it came from
@@ -77,6 +79,13 @@ class Suite:
         ):
             if value not in valid:
                 raise KitbenchError(f"{self._where()}unknown {key} {value!r}; valid choices: {', '.join(valid)}")
+        if self.robot is not None:
+            supported = task_entry(self.task).env_class.supported_robots
+            if self.robot not in supported:
+                raise KitbenchError(
+                    f"{self._where()}robot {self.robot!r} is not supported by {self.task}; valid choices: "
+                    f"{', '.join(supported)}"
+                )
         if isinstance(self.settle_steps, bool) or not isinstance(self.settle_steps, int) or self.settle_steps < 0:
             raise KitbenchError(f"{self._where()}settle_steps must be an integer >= 0, got {self.settle_steps!r}")
         object.__setattr__(self, "perturbations", _parse_perturbations(self.perturbations, self._where()))
@@ -93,6 +102,11 @@ class Suite:
         bad = [s for s in self.seeds if not is_seed(s)]
         if bad:
             raise KitbenchError(f"{self._where()}seeds must be non-negative integers, got {bad[0]!r}")
+
+    @property
+    def robot_uid(self) -> str:
+        """The robot the suite runs: its own, else the task's default."""
+        return self.robot or task_entry(self.task).env_class.supported_robots[0]
 
     @property
     def headline(self) -> str:
@@ -129,6 +143,7 @@ class Suite:
             "reward_mode": self.reward_mode,
             "description": self.description,
             "settle_steps": self.settle_steps,
+            "robot": self.robot_uid,
             "perturbations": {name: list(levels) for name, levels in self.perturbations},
             "source": self.source,
         }

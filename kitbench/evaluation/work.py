@@ -41,6 +41,7 @@ def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, 
         control_mode=suite.control_mode,
         reward_mode=suite.reward_mode,
         render_mode="rgb_array" if render else None,
+        robot_uids=suite.robot,
         perturbations=None if perturbation is None else dict([perturbation]),
     )
 

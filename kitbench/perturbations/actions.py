@@ -6,7 +6,7 @@ from collections import deque
 
 import numpy as np
 
-from kitbench.control.noise_units import NOISE_UNITS
+from kitbench.control.noise_units import noise_std
 from kitbench.perturbations.base import Perturbation
 from kitbench.perturbations.registry import register_perturbation
 
@@ -43,6 +43,6 @@ class ActionNoise(Perturbation):
     def action(self, action, env, rng):
         if action is None:
             return None
-        std = self.level * np.append(np.asarray(NOISE_UNITS[env.control_mode], dtype=np.float64), 0.0)
+        std = noise_std(env.control_mode, self.level, len(action))
         noisy = action + rng.standard_normal(action.shape) * std
         return np.clip(noisy, env.action_space.low, env.action_space.high).astype(np.float32)

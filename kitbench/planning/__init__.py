@@ -31,15 +31,9 @@ from kitbench.planning.poses import (
     rotation_angle,
     smoothstep,
 )
-from kitbench.planning.timing import (
-    ARM_MAX_ACCELERATION,
-    ARM_MAX_VELOCITY,
-    time_parametrize,
-)
+from kitbench.planning.timing import time_parametrize
 
 __all__ = [
-    "ARM_MAX_ACCELERATION",
-    "ARM_MAX_VELOCITY",
     "CLOSED",
     "HAND_DOWN",
     "OPEN",

@@ -1,4 +1,4 @@
-"""Inverse kinematics for scripted experts: TCP pose paths to timed Panda joint targets, through `PandaKinematics`.
+"""Inverse kinematics for scripted experts: TCP pose paths to timed arm joint targets, through `ArmKinematics`.
 
 Experts command `pd_joint_pos`: every control step they send the joint targets that reach one TCP pose of a
 planned path. Planning in joint space keeps the expert independent of the end-effector controllers' lead limits,
@@ -6,7 +6,7 @@ and solving each waypoint from the previous solution keeps the arm on one IK bra
 
 A path is a function s -> TCP pose, s in [0, 1]. `ArmIK.plan` solves it densely and times it with
 `timing.time_parametrize`. Poses are 4x4 matrices in the world frame; `ArmIK` converts to the robot base frame
-`PandaKinematics` uses.
+`ArmKinematics` uses.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from kitbench.control.kinematics import PandaKinematics
+from kitbench.control.kinematics import ArmKinematics, arm_joint_limits
 from kitbench.planning.poses import rotation_angle
 from kitbench.planning.timing import time_parametrize
 
@@ -42,18 +42,18 @@ class TimedPath:
 
 
 class ArmIK:
-    """World-frame TCP poses to Panda arm joint targets, each waypoint solved from the previous solution.
+    """World-frame TCP poses to arm joint targets, each waypoint solved from the previous solution.
 
     A pose the arm cannot reach shows up as a residual error (mink stalls against a joint limit or the
     velocity limit per iteration), so callers check `IKResult.ok` rather than trusting a converged flag: a
     waypoint a few millimetres off is still a usable target for the PD drives.
     """
 
-    def __init__(self, base_pose: np.ndarray, kinematics: PandaKinematics | None = None):
+    def __init__(self, base_pose: np.ndarray, kinematics: ArmKinematics):
         self.base = base_pose
         self.base_inv = np.linalg.inv(base_pose)
-        self.kin = kinematics or PandaKinematics()
-        self.limits = self.kin.model.jnt_range[:7].copy()
+        self.kin = kinematics
+        self.limits = arm_joint_limits(kinematics.spec)
 
     def to_base(self, world_pose: np.ndarray) -> np.ndarray:
         return self.base_inv @ world_pose

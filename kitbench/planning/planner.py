@@ -14,10 +14,10 @@ from collections.abc import Callable
 import numpy as np
 
 from kitbench.control.controllers import JOINT_DELTA_MODES, MEASURED_DELTA_MODES
+from kitbench.control.kinematics import ArmKinematics
 from kitbench.planning.ik import ArmIK, TimedPath
 from kitbench.planning.phases import OPEN, PhaseSequencer, Step, hold
 from kitbench.planning.poses import pose_matrix
-from kitbench.planning.timing import ARM_MAX_ACCELERATION, ARM_MAX_VELOCITY
 
 # In pd_joint_delta_pos the target leads the measured joints by at most the action bound (0.1 rad), and the
 # drives cover only part of a lead in one control step: ~0.063 rad for the wrist mid-swing. A plan faster than
@@ -30,7 +30,8 @@ MEASURED_DELTA_TRACKING = 0.6
 class PhasePlanner(ABC):
     """Closed loop between phases, open loop within them; reads the simulated state from `env.unwrapped`.
 
-    `act` returns a `pd_joint_pos` action (7 joint targets, gripper -1 open .. 1 closed) whatever the env's
+    `act` returns a `pd_joint_pos` arm action (the arm's joint targets, then the gripper, -1 open .. 1 closed;
+    no body or base entries) whatever the env's
     control mode: an env in another mode needs the target converted (`kitbench.policies.convert`). In the joint
     delta modes the plans keep every joint step inside the +-0.1 rad action box (2 rad/s, below joints 5-7's
     2.61 rad/s): a clipped step would leave the joints out of step with one another.
@@ -39,20 +40,24 @@ class PhasePlanner(ABC):
     `grasp_attempts` and `failure` (None, or why the expert gave up) let benchmarks sort failures.
 
     `config` (default `default_config()`) is a frozen dataclass of the expert's tunables; the base class reads
-    its `speed_factor`, the fraction of the Panda's joint velocity and acceleration limits plans may use.
+    its `speed_factor`, the fraction of the robot's joint velocity and acceleration limits plans may use.
     """
 
     def __init__(self, env, config=None):
         self.env = env.unwrapped
         self.cfg = config or self.default_config()
         self.dt = self.env.control_timestep
-        self.max_velocity = self.cfg.speed_factor * ARM_MAX_VELOCITY
-        self.max_acceleration = self.cfg.speed_factor * ARM_MAX_ACCELERATION
+        spec = self.env.robot_spec
+        self.n_arm = len(spec.arm_joints)
+        self.max_velocity = self.cfg.speed_factor * np.asarray(spec.arm_velocity_limits)
+        self.max_acceleration = self.cfg.speed_factor * np.asarray(spec.arm_acceleration_limits)
         if self.env.control_mode in JOINT_DELTA_MODES:  # their actions move a joint at most this far per step
             fraction = MEASURED_DELTA_TRACKING if self.env.control_mode in MEASURED_DELTA_MODES else 0.98
-            step_limit = self.env.action_space.high[:7].astype(np.float64) * fraction
+            step_limit = self.env.action_space.high[: self.n_arm].astype(np.float64) * fraction
             self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
-        self.ik = ArmIK(pose_matrix(self.env.robot.base_pose))
+        kinematics = ArmKinematics(spec)
+        kinematics.set_body(self.env.robot.body_qpos())
+        self.ik = ArmIK(pose_matrix(self.env.robot.base_pose), kinematics)
         self.sequencer = PhaseSequencer(self.plan_next)
         self.reset()
 
@@ -107,7 +112,7 @@ class PhasePlanner(ABC):
     def _last(self) -> Step:
         """Where the next phase starts: the last commanded step (the measured joints before the first action)."""
         if self.sequencer.last is None:
-            q = self.env.robot.qpos()[:7].astype(np.float64)
+            q = self.env.robot.arm_qpos().astype(np.float64)
             return Step(self.ik.fk(q), q, OPEN, "start")
         return self.sequencer.last
 

@@ -1,8 +1,9 @@
 """Time parametrisation: how fast a scripted expert moves along a joint path.
 
-Every path is timed rest to rest, as fast as the Panda's joint velocity and acceleration limits allow
-(`time_parametrize`), so an expert's speed comes from the robot's limits rather than hand-tuned step counts,
-and its demonstrations stay within what the real arm can do.
+Every path is timed rest to rest, as fast as the robot's joint velocity and acceleration limits allow
+(`time_parametrize`; `RobotSpec.arm_velocity_limits` / `arm_acceleration_limits`), so an expert's speed comes
+from the robot's limits rather than hand-tuned step counts, and its demonstrations stay within what the real arm
+can do.
 """
 
 from __future__ import annotations
@@ -10,11 +11,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from kitbench.control.kinematics import ARM_VELOCITY_LIMITS
-
-ARM_MAX_VELOCITY = np.array(list(ARM_VELOCITY_LIMITS.values()))  # rad/s, the real Panda's joint limits
-ARM_MAX_ACCELERATION = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])  # rad/s^2, Franka's datasheet
 
 
 def _acceleration_intervals(dq: np.ndarray, d2q: np.ndarray, max_acceleration: np.ndarray):
@@ -90,4 +86,4 @@ def time_parametrize(
     return out
 
 
-__all__ = ["ARM_MAX_ACCELERATION", "ARM_MAX_VELOCITY", "time_parametrize"]
+__all__ = ["time_parametrize"]

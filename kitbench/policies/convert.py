@@ -14,13 +14,14 @@ from kitbench.geometry import matrix_to_axis_angle
 
 
 def joint_target_to_action(env, arm_target: np.ndarray, gripper: float) -> np.ndarray:
+    """The env's action that drives the arm to `arm_target` (joint positions) with the gripper at `gripper`."""
     u = env.unwrapped
     mode = u.control_mode
     controller = u.controller
     if mode == "pd_joint_pos":
         arm = arm_target
     elif mode in JOINT_DELTA_MODES:
-        base = controller.joint_target if mode in TARGET_DELTA_MODES else u.robot.qpos()[:7]
+        base = controller.joint_target if mode in TARGET_DELTA_MODES else u.robot.arm_qpos()
         arm = arm_target - base
     else:
         kin = controller.kinematics
@@ -30,10 +31,12 @@ def joint_target_to_action(env, arm_target: np.ndarray, gripper: float) -> np.nd
         else:
             previous = controller.tcp_target if mode in TARGET_DELTA_MODES else None
             if previous is None:
-                previous = kin.tcp_pose(u.robot.qpos()[:7])
+                previous = kin.tcp_pose(u.robot.arm_qpos())
             arm = target[:3, 3] - previous[:3, 3]
             if mode.endswith("_pose"):
                 arm = np.concatenate([arm, matrix_to_axis_angle(target[:3, :3] @ previous[:3, :3].T)])
-    action = np.append(arm, gripper).astype(np.float32)
+    # the robot's body joints and base (if any) hold still: zero deltas, zero velocities
+    extra = np.zeros(len(u.robot_spec.extra_action_names))
+    action = np.concatenate([arm, [gripper], extra]).astype(np.float32)
     space = u.action_space
     return np.clip(action, space.low, space.high)

@@ -36,7 +36,7 @@ class ExpertPolicy:
 
     def act(self, obs):
         target = self.planner.act(obs)
-        return joint_target_to_action(self._env, target[:7], float(target[7]))
+        return joint_target_to_action(self._env, target[:-1], float(target[-1]))
 
     @property
     def phase(self):

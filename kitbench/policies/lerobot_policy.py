@@ -37,9 +37,10 @@ def env_features(env) -> dict[str, tuple[int, ...]]:
     return provided
 
 
-def trained_control_mode(checkpoint: Path) -> str | None:
-    """The control mode of the actions a checkpoint was trained on: from its kitbench dataset's recording
-    settings, else from the kitbench env it was evaluated on during training (None if neither is known)."""
+def trained_setting(checkpoint: Path, key: str) -> str | None:
+    """A setting of the data a checkpoint was trained on (`control_mode`, `robot`): from its kitbench dataset's
+    recording settings, else from the kitbench env it was evaluated on during training (None if neither is
+    known). A recording without a `robot` setting was made on its task's default robot."""
     path = checkpoint / "train_config.json"
     if not path.is_file():
         return None
@@ -48,9 +49,19 @@ def trained_control_mode(checkpoint: Path) -> str | None:
     if root:
         recording = read_recording_settings(root)
         if recording is not None:
-            return recording.get("control_mode")
+            value = recording.get(key)
+            if value is None and key == "robot" and recording.get("task"):
+                from kitbench.registration import task_entry
+
+                value = task_entry(recording["task"]).env_class.supported_robots[0]
+            return value
     env = train.get("env") or {}
-    return env.get("control_mode") if env.get("type") == "kitbench" else None
+    return env.get(key) if env.get("type") == "kitbench" else None
+
+
+def trained_control_mode(checkpoint: Path) -> str | None:
+    """The control mode of the actions a checkpoint was trained on (`trained_setting`)."""
+    return trained_setting(checkpoint, "control_mode")
 
 
 class LeRobotPolicy:
@@ -76,6 +87,7 @@ class LeRobotPolicy:
         self._torch = torch
         self.name = f"lerobot:{checkpoint}"
         self.control_mode = trained_control_mode(path)
+        self.robot = trained_setting(path, "robot")
 
     def requirements(self) -> dict:
         """What the env must provide: camera images if the policy reads any, its training control mode."""
@@ -84,6 +96,8 @@ class LeRobotPolicy:
             needs["obs_mode"] = "rgb"
         if self.control_mode is not None:
             needs["control_mode"] = self.control_mode
+        if self.robot is not None:
+            needs["robot"] = self.robot
         return needs
 
     def check(self, env) -> None:

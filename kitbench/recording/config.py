@@ -46,6 +46,8 @@ class RecordConfig:
     settle_steps: int = 0
     # What `next.reward` holds (kitbench.envs.modes.REWARD_MODES); stored with the recording's settings.
     reward_mode: str = "dense"
+    # The robot (`robot_uids`); None: the task's default (LiftPegUpright: panda). Stored with the settings.
+    robot: str | None = None
     # Where episodes run (kitbench.engine.ExecutorConfig): this machine (`workers` processes) or a Ray cluster.
     # Not part of the identity: a dataset is the same whichever ran it, so a resume may change them.
     executor: str = "local"
@@ -83,8 +85,12 @@ class RecordConfig:
             "action_noise",
             "settle_steps",
             "reward_mode",
+            # None: the task's default robot; a recording made before robots could be chosen has no `robot`
+            # setting, which reads as None too, so it resumes under the default and refuses another robot
+            "robot",
         )
-        return {**{k: getattr(self, k) for k in settings}, "kitbench_version": kitbench.__version__}
+        identity = {k: getattr(self, k) for k in settings}
+        return {**identity, "kitbench_version": kitbench.__version__}
 
 
 RECIPE_KEYS = {f.name for f in dataclasses.fields(RecordConfig)}
@@ -254,5 +260,9 @@ def make_recording_env(config: RecordConfig):
     from kitbench.registration import make_env
 
     return make_env(
-        config.task, obs_mode=config.obs_mode, control_mode=config.control_mode, reward_mode=config.reward_mode
+        config.task,
+        obs_mode=config.obs_mode,
+        control_mode=config.control_mode,
+        reward_mode=config.reward_mode,
+        robot_uids=config.robot,
     )

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from kitbench.control.noise_units import NOISE_UNITS
+from kitbench.control.noise_units import NOISE_UNITS, noise_std
 from kitbench.errors import KitbenchError
 
 _STREAM = 0xDA27  # keeps the noise stream apart from the env's own use of the seed
@@ -32,7 +32,7 @@ class ActionNoise:
 
     def __init__(self, control_mode: str, scale: float, seed: int, low: np.ndarray, high: np.ndarray):
         check_noise_scale(scale)
-        self.std = scale * np.append(np.asarray(NOISE_UNITS[control_mode], dtype=np.float64), 0.0)
+        self.std = noise_std(control_mode, scale, len(low))
         self.low, self.high = low, high
         self.rng = np.random.default_rng([seed, _STREAM])
 

@@ -71,17 +71,29 @@ def create_scene(config: SimConfig, render: bool) -> sapien.Scene:
     return scene
 
 
-def add_table_and_ground(scene: sapien.Scene, render: bool) -> sapien.Entity:
-    """A static table whose top is z = 0 and a floor below it."""
+def add_table_and_ground(
+    scene: sapien.Scene, render: bool, near_edge: float | None = None, shared_bits: int = 0
+) -> sapien.Entity:
+    """A static table whose top is z = 0 and a floor below it.
+
+    `near_edge`: the table starts at this x instead of its own near edge (-1.02), so a robot standing further
+    back fits in front of it. `shared_bits`: collision group-2 bits the table and the floor share with robot
+    links that must touch neither (SAPIEN skips a pair of shapes sharing such a bit)."""
     builder = scene.create_actor_builder()
     half = np.array(TABLE_HALF_SIZE)
-    pose = sapien.Pose([TABLE_CENTER[0], TABLE_CENTER[1], -half[2]])
+    center_x = TABLE_CENTER[0]
+    if near_edge is not None and near_edge > center_x - half[0]:
+        far_edge = center_x + half[0]
+        half[0] = (far_edge - near_edge) / 2
+        center_x = (far_edge + near_edge) / 2
+    pose = sapien.Pose([center_x, TABLE_CENTER[1], -half[2]])
     builder.add_box_collision(pose=pose, half_size=half)
     if render:
         material = sapien.render.RenderMaterial(base_color=[0.66, 0.55, 0.42, 1.0], roughness=0.7, specular=0.1)
         builder.add_box_visual(pose=pose, half_size=half, material=material)
     table = builder.build_static(name="table")
     ground = scene.create_actor_builder()
+    _share_bits(table, shared_bits)
     ground.add_plane_collision(sapien.Pose([0, 0, GROUND_Z], [0.7071068, 0, -0.7071068, 0]))
     if render:
         ground.add_plane_visual(
@@ -89,12 +101,21 @@ def add_table_and_ground(scene: sapien.Scene, render: bool) -> sapien.Entity:
             scale=[10, 10, 10],
             material=sapien.render.RenderMaterial(base_color=[0.85, 0.85, 0.85, 1.0], roughness=0.9),
         )
-    ground.build_static(name="ground")
+    _share_bits(ground.build_static(name="ground"), shared_bits)
     if render:
         scene.set_ambient_light([0.3, 0.3, 0.3])
         scene.add_directional_light([1, 1, -1], [1, 1, 1], shadow=False)
         scene.add_directional_light([0, 0, -1], [1, 1, 1])
     return table
+
+
+def _share_bits(actor: sapien.Entity, bits: int) -> None:
+    if not bits:
+        return
+    for shape in actor.find_component_by_type(physx.PhysxRigidBaseComponent).collision_shapes:
+        groups = list(shape.collision_groups)
+        groups[2] |= bits
+        shape.set_collision_groups(groups)
 
 
 def set_actor_pose(actor: sapien.Entity, p, q) -> None:

@@ -61,14 +61,14 @@ def build_peg(scene: sapien.Scene, render: bool, scale: float = 1.0) -> sapien.E
 class LiftPegUprightEnv(TabletopEnv):
     """Move a peg lying on the table to an upright position on the table (50 control steps)."""
 
-    supported_robots = ("panda",)
+    supported_robots = ("panda", "fetch")
     max_dense_reward = 3.0
     default_qpos_noise = 0.02
     environment_state_keys = ("peg_pose",)
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
     failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
-    expert = "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"
+    expert = {"panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"}
 
     def _load_task(self, scene, render):
         self.peg_scale = self.object_scale

@@ -24,10 +24,10 @@ _STATE_KEYS = {"agent_pos": (STATE, FeatureType.STATE), "environment_state": (EN
 
 
 @lru_cache(maxsize=16)
-def _env_features(task: str, control_mode: str) -> tuple[dict, dict]:
+def _env_features(task: str, control_mode: str, robot: str | None) -> tuple[dict, dict]:
     """The task's observation features (cameras included) and action feature, read off a state-only env: the
     env is the one place they are defined, and a state env needs no renderer."""
-    env = make_env(task, obs_mode="state", control_mode=control_mode)
+    env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
     try:
         return observation_features(env, images=True), action_feature(env)
     finally:
@@ -54,6 +54,8 @@ class KitbenchEnvConfig(EnvConfig):
     obs_type: str = "state"
     # Action space; must be the one the training dataset was recorded in (its meta/kitbench_recording.json).
     control_mode: str = "pd_joint_delta_pos"
+    # The robot the policy was trained on (its dataset's meta/kitbench_recording.json); default: the task's first.
+    robot: str | None = None
     # Steps before an episode is cut off; default: the task's own step limit.
     episode_length: int | None = None
     # How the env renders for lerobot's evaluation videos.
@@ -72,7 +74,7 @@ class KitbenchEnvConfig(EnvConfig):
         check_choice("control_mode", self.control_mode, CONTROL_MODES)
         Perturbations(self.perturbations)  # refuses unknown names and levels out of range here, in one line
         register_lerobot_envs()  # tasks registered after this package was imported get their gym ids too
-        observations, action = _env_features(self.task, self.control_mode)
+        observations, action = _env_features(self.task, self.control_mode, self.robot)
         self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=tuple(action["shape"]))}
         self.features_map = {"action": "action"}
         for key, (name, kind) in _STATE_KEYS.items():
@@ -92,4 +94,6 @@ class KitbenchEnvConfig(EnvConfig):
             kwargs["max_episode_steps"] = self.episode_length
         if self.perturbations:
             kwargs["perturbations"] = dict(self.perturbations)
+        if self.robot is not None:
+            kwargs["robot_uids"] = self.robot
         return kwargs

@@ -34,11 +34,17 @@ class LeRobotKitbenchEnv(gym.Env):
         control_mode: str = "pd_joint_delta_pos",
         render_mode: str | None = "rgb_array",
         perturbations: dict | None = None,
+        robot_uids: str | None = None,
     ):
         check_choice("obs_type", obs_type, OBS_TYPES)
         obs_mode = "rgb" if obs_type == "pixels_state" else "state_dict"
         self._env = make_env(
-            task, obs_mode=obs_mode, control_mode=control_mode, render_mode=render_mode, perturbations=perturbations
+            task,
+            obs_mode=obs_mode,
+            control_mode=control_mode,
+            render_mode=render_mode,
+            perturbations=perturbations,
+            robot_uids=robot_uids,
         ).unwrapped
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": self._env.sim_config.control_freq}

@@ -1,0 +1,109 @@
+"""`RobotSpec`: everything that distinguishes one robot from another, as data the generic `Robot` (the articulation
+in a scene), `ArmKinematics` (its MuJoCo twin for IK) and the env read. A robot is one module under
+`kitbench/robots/` that builds its specs; nothing else in kitbench names a robot's joints or links.
+
+Action layout, whatever the robot: `[arm part (the control mode's), gripper, body joints..., base...]`: the arm
+part is the control mode's (7 joint values, 3 or 6 TCP values), the gripper one value (-1 open .. 1 closed), then
+one delta per body joint (a head, a torso: position-driven joints outside the arm, +-`body_action_bound` a step)
+and, for a mobile base, its forward velocity and yaw rate. A Panda has neither body joints nor a base.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from kitbench.sim.cameras import CameraSpec
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """A robot variant: its model, the joints and links kitbench drives and reads, and its drive settings."""
+
+    uid: str
+    urdf: Callable[[], Path]  # the URDF SAPIEN loads (meshes beside it)
+    mujoco_urdf: Callable[[], str]  # the same URDF as MuJoCo compiles it (absolute mesh paths, no visuals)
+    arm_joints: tuple[str, ...]
+    finger_joints: tuple[str, ...]
+    finger_links: tuple[str, ...]
+    # The TCP: a link, and the TCP's pose in it (p, wxyz). kitbench's TCP convention, which the experts' grasp
+    # poses assume: z along the approach direction, y along the fingers' closing direction.
+    tcp_link: str
+    tcp_offset: tuple[tuple[float, float, float], tuple[float, float, float, float]]
+    base_link: str  # the frame arm poses are expressed in (moves with a mobile base)
+    ready_arm_qpos: tuple[float, ...]  # the arm at reset, before the task's noise
+    finger_open: float  # finger joint target of an open gripper (action -1)
+    finger_closed: float  # of a closed one (action 1), past the fingers' limit so a closed hand keeps squeezing
+    base_pose: tuple[tuple[float, float, float], tuple[float, float, float, float]]  # where it stands (world)
+    arm_velocity_limits: tuple[float, ...]  # rad/s: IK steps and the experts' timing stay within them
+    arm_acceleration_limits: tuple[float, ...]  # rad/s^2
+    # For each finger link, the sign of its frame's y axis along which it closes (grasp detection).
+    finger_closing_y: tuple[float, ...] = (-1.0, 1.0)
+    ee_position_bound: float = 1.0  # m: `pd_ee_pose`'s position box around the base frame's origin
+    body_joints: tuple[str, ...] = ()  # position-driven joints outside the arm, delta-commanded
+    body_ready: tuple[float, ...] = ()
+    body_action_bound: float = 0.1  # rad or m a step
+    base_joints: tuple[str, ...] = ()  # a mobile base's (x, y, yaw) root joints, velocity-driven
+    base_max_speed: float = 1.0  # m/s, forward velocity action bound
+    base_max_yaw_rate: float = 3.14  # rad/s
+    cameras: tuple[CameraSpec, ...] = field(default_factory=tuple)
+    # Critically damped on the Panda's heaviest joint: 0.1 rad steps settle in ~0.1 s with < 1% overshoot, where
+    # the reference gains (1e3, 1e2) reach only a quarter of a step within one 50 ms control period.
+    arm_stiffness: float = 1e4
+    arm_damping: float = 5e2
+    arm_force_limit: float = 100.0
+    gripper_stiffness: float = 1e3
+    gripper_damping: float = 1e2
+    gripper_force_limit: float = 100.0
+    body_stiffness: float = 1e4
+    body_damping: float = 1e3
+    body_force_limit: float = 1000.0
+    # The base joints follow a target that the velocity action integrates: stiff, so that a zero action holds the
+    # base where it is against the arm's reaction forces, and damped to the velocity target.
+    base_stiffness: float = 1e6
+    base_damping: float = 1e4
+    base_force_limit: float = 1e5
+    finger_friction: float = 2.0
+    # Link pairs that must not collide (SAPIEN's URDF loader ignores the SRDF's "Adjacent" entries).
+    self_collision_ignored: tuple[tuple[str, str], ...] = ()
+    # Links that never touch the ground or the table (a mobile base's wheels and body sit on the ground plane:
+    # resting contacts there would push a base that holds still).
+    ground_free_links: tuple[str, ...] = ()
+    # Links whose visual meshes are decimated for CPU rendering (kitbench.robots.visuals); none: kept as is.
+    decimate_visuals: bool = False
+    # The room the robot needs in front of its base (m): the table's near edge stays at least this far from
+    # the base's origin along +x. None: the standard table (its near edge under the Panda's base).
+    table_clearance: float | None = None
+
+    @property
+    def has_base(self) -> bool:
+        return bool(self.base_joints)
+
+    def gripper_target(self, action: float) -> float:
+        """Gripper command in [-1, 1] (-1 open, 1 closed) to the finger joint target."""
+        a = min(1.0, max(-1.0, float(action)))
+        return self.finger_open + (a + 1.0) * 0.5 * (self.finger_closed - self.finger_open)
+
+    @property
+    def extra_action_names(self) -> list[str]:
+        """Names of the action entries after the gripper: body joint deltas, then the base's two velocities."""
+        names = [f"delta_{j}" for j in self.body_joints]
+        if self.has_base:
+            names += ["base_forward_velocity", "base_yaw_rate"]
+        return names
+
+    def extra_action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        high = [self.body_action_bound] * len(self.body_joints)
+        if self.has_base:
+            high += [self.base_max_speed, self.base_max_yaw_rate]
+        h = np.asarray(high, dtype=np.float32)
+        return -h, h
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """LeRobot's `observation.state`: the arm's joints, the gripper opening, body joints, base x, y, yaw."""
+        names = (*self.arm_joints, "gripper_opening", *self.body_joints)
+        return (*names, "base_x", "base_y", "base_yaw") if self.has_base else names
