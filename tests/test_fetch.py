@@ -101,7 +101,7 @@ def test_joint_modes_move_the_arm_joints_by_the_action():
         env.step(_zero(env))
     np.testing.assert_allclose(u.robot.arm_qpos() - start, 4 * action[:7], atol=0.01)
     env = _env("pd_joint_pos")
-    obs, _ = env.reset(seed=0)
+    env.reset(seed=0)
     u = env.unwrapped
     target = u.robot.arm_qpos() + [0.2, 0.1, -0.2, -0.1, 0.2, -0.2, 0.3]
     action = _zero(env)

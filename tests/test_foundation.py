@@ -13,8 +13,8 @@ import sapien
 import kitbench
 from kitbench.control.kinematics import ArmKinematics, arm_model
 from kitbench.geometry import look_at, pose_to_matrix
-from kitbench.robots.assets import panda_urdf_path
 from kitbench.robots import ROBOTS, Robot
+from kitbench.robots.assets import panda_urdf_path
 from kitbench.robots.panda import READY_ARM_QPOS
 from kitbench.sim.scene import SimConfig, create_scene
 

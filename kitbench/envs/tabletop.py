@@ -211,8 +211,7 @@ class TabletopEnv(gym.Env, abc.ABC):
         if isinstance(entry, dict):  # one expert per robot
             if self.robot_uid not in entry:
                 raise KitbenchError(
-                    f"task {self.task_id} has no expert for robot {self.robot_uid}; robots with one: "
-                    f"{', '.join(entry)}"
+                    f"task {self.task_id} has no expert for robot {self.robot_uid}; robots with one: {', '.join(entry)}"
                 )
             entry = entry[self.robot_uid]
         if entry is None:

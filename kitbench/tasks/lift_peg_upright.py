@@ -8,6 +8,7 @@ XYZ Euler decomposition) accepts a horizontal peg held at 12 cm and rejects a tr
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import numpy as np
 import sapien
@@ -68,7 +69,7 @@ class LiftPegUprightEnv(TabletopEnv):
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
     failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
-    expert = {"panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"}
+    expert: ClassVar[dict[str, str | type]] = {"panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"}
 
     def _load_task(self, scene, render):
         self.peg_scale = self.object_scale
