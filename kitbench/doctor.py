@@ -130,8 +130,24 @@ def check_ray() -> Check:
     return Check("ray", True, f"{version}; --executor ray --ray-address auto {where}")
 
 
+def check_fetch_assets() -> Check:
+    """The Fetch robot's model, installed at set-up time from the package index (`make bootstrap`)."""
+    from kitbench.robots.fetch_assets import INSTALL_HINT, source
+
+    where = source()
+    if "override" in where:
+        found = f"{where['path']} (from {where['override']})"
+        missing = f"{where['override']}={where['path']} has no fetch.urdf"
+        fix = f"point {where['override']} at the folder holding fetch.urdf, or unset it and {INSTALL_HINT}"
+    else:
+        found = f"{where['path']} (from {where['wheel']}, sha256 {where['sha256'][:12]})"
+        missing = f"missing at {where['path']}"
+        fix = INSTALL_HINT
+    return Check("fetch model", where["present"], found if where["present"] else missing, fix)
+
+
 def run_doctor(stream=sys.stdout) -> int:
-    checks = [*check_versions(), check_vulkan(), check_video_decoding(), check_ray()]
+    checks = [*check_versions(), check_vulkan(), check_video_decoding(), check_ray(), check_fetch_assets()]
     width = max(len(c.name) for c in checks)
     for c in checks:
         print(f"{'ok ' if c.ok else 'BAD'} {c.name:<{width}}  {c.detail}", file=stream)
