@@ -240,7 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--seed", type=int, help="first seed, >= 0 (default 0); episode k uses seed + k")
     rec.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd")
     rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
-    rec.add_argument("--robot", help="the robot (LiftPegUpright: panda (default) or fetch); stored with the recording")
+    rec.add_argument(
+        "--robot", help="one of the task's robots (default: its first, e.g. panda; or fetch); stored with the recording"
+    )
     rec.add_argument("--policy", help="expert (default), random or zero")
     rec.add_argument("--only-success", dest="only_success", action="store_true", help="store successful episodes only")
     rec.add_argument(
@@ -339,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="default pd_joint_delta_pos, or the mode a lerobot/replay policy was trained in",
     )
     ev.add_argument("--reward-mode", dest="reward_mode", help="reward summed into returns (default dense)")
-    ev.add_argument("--robot", help="the robot (default: the suite's, else the task's first: panda)")
+    ev.add_argument("--robot", help="one of the task's robots (default: the suite's, else the task's first)")
     ev.add_argument(
         "--settle-steps",
         dest="settle_steps",
