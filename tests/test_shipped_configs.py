@@ -39,6 +39,7 @@ def test_config_parses_with_lerobot_and_matches_its_recipe(path):
     recipe = RECIPES.get(cfg.dataset.root)
     assert recipe is not None, f"{path.name}: no recipe in datasets/ writes {cfg.dataset.root}"
     assert cfg.env.task == recipe.task and cfg.env.control_mode == recipe.control_mode
+    assert cfg.env.robot == recipe.robot  # None: the task's default robot, in both
     assert cfg.dataset.repo_id == recipe.dataset_repo_id
     assert (cfg.env.obs_type == "pixels_state") == (recipe.obs_mode != "state")
 
@@ -47,14 +48,16 @@ LENGTH_SEEDS = 10  # episodes per recipe whose lengths the chunk check reads
 
 
 @cache
-def _shortest_demo(task: str, control_mode: str, settle_steps: int, action_noise: float, first_seed: int) -> int:
+def _shortest_demo(
+    task: str, control_mode: str, settle_steps: int, action_noise: float, first_seed: int, robot: str | None = None
+) -> int:
     """The shortest successful episode among a recipe's first seeds, recorded as state: cameras do not change
     the physics, so an image recipe's episodes are as long."""
     from kitbench.policies.expert import ExpertPolicy
     from kitbench.recording.rollout import run_episode
     from kitbench.registration import make_env
 
-    env = make_env(task, obs_mode="state", control_mode=control_mode)
+    env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
     lengths = []
     for seed in range(first_seed, first_seed + LENGTH_SEEDS):
         episode = run_episode(env, ExpertPolicy(), seed, settle_steps=settle_steps, action_noise=action_noise)
@@ -81,13 +84,15 @@ def test_config_fits_the_data_its_recipe_writes(path):
 
     cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=[])
     recipe = RECIPES[cfg.dataset.root]
-    shortest = _shortest_demo(recipe.task, recipe.control_mode, recipe.settle_steps, recipe.action_noise, recipe.seed)
+    shortest = _shortest_demo(
+        recipe.task, recipe.control_mode, recipe.settle_steps, recipe.action_noise, recipe.seed, recipe.robot
+    )
     policy = cfg.policy
     span = policy.chunk_size if policy.type == "act" else policy.horizon
     assert span <= shortest, f"{path.name}: {span} action steps per prediction, shortest demo {shortest}"
     assert policy.n_action_steps <= span
 
-    state_env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode)
+    state_env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode, robot_uids=recipe.robot)
     try:
         recorded = dataset_features(state_env)
         if recipe.obs_mode != "state":

@@ -109,6 +109,9 @@ FETCH = RobotSpec(
     arm_damping=5e2,
     self_collision_ignored=SELF_COLLISION_IGNORED,
     ground_free_links=GROUND_FREE_LINKS,
+    # the reference's visual meshes (DAE, 9 MB) cost rgb observations 4x: 8 steps/s with them, 28-33 decimated
+    # (bench/run.py, 3 cameras at 128x128); the decimated copies keep each part's colour but not its texture
+    decimate_visuals=True,
     table_clearance=0.35,  # the base's radius is 0.28 m; its bumper stays 7 cm from the table
 )
 SPECS = (FETCH,)
