@@ -1,9 +1,11 @@
 """Benchmark the LiftPegUpright-v1 expert.
 
-    python bench/expert_lift_peg.py [--seeds N] [--workers K] [--control-mode M]
+    python bench/expert_lift_peg.py [--robot panda|fetch] [--seeds N] [--first S] [--workers K] [--control-mode M]
+                                    [--max-steps T]
 
-Runs seeds 0..N-1 (default settings, `pd_joint_pos` unless told, 50-step limit) and prints the success rate, the
-steps of successful episodes (median / p90 / max), failures by category and episodes per second.
+Runs seeds S..S+N-1 (default settings, `pd_joint_pos` unless told, the task's 50-step limit unless `--max-steps`
+raises it) with the robot's expert and prints the success rate, the steps of successful episodes
+(median / p90 / max), failures by category and episodes per second.
 """
 
 from __future__ import annotations
@@ -18,10 +20,11 @@ import gymnasium as gym
 import numpy as np
 
 import kitbench  # noqa: F401  (registers the tasks)
-from kitbench.planning.lift_peg_upright import LiftPegUprightPlanner
+from kitbench.planning.planner import PhasePlanner
 from kitbench.policies.convert import joint_target_to_action
 
 TASK = "kitbench/LiftPegUpright-v1"
+TASK_STEPS = 50
 
 
 @dataclass
@@ -35,18 +38,18 @@ class Episode:
     z_error: float
 
 
-def failure_category(planner: LiftPegUprightPlanner, info: dict) -> str:
+def failure_category(planner: PhasePlanner, info: dict) -> str:
     """Why an episode failed: the planner's own verdict if it gave up, else what was wrong when time ran out."""
     if planner.failure is not None:
         return planner.failure
-    if planner.phase in ("approach", "descend", "grasp", "regrasp", "swing"):
+    if planner.phase in ("approach", "descend", "insert", "grasp", "regrasp", "swing"):
         return f"timeout in {planner.phase}"
     if info["tilt"] >= 0.08:
         return "tilted"
     return "height"
 
 
-def run_episode(env, planner: LiftPegUprightPlanner, seed: int) -> Episode:
+def run_episode(env, planner: PhasePlanner, seed: int) -> Episode:
     obs, info = env.reset(seed=seed)
     planner.reset(obs, info)
     steps = 0
@@ -60,34 +63,44 @@ def run_episode(env, planner: LiftPegUprightPlanner, seed: int) -> Episode:
     return Episode(seed, success, steps, category, planner.grasp_attempts, float(info["tilt"]), float(info["z_error"]))
 
 
-def run_seeds(args: tuple[list[int], str]) -> list[Episode]:
-    seeds, control_mode = args
-    env = gym.make(TASK, control_mode=control_mode, obs_mode="state_dict")
-    planner = LiftPegUprightPlanner(env)
+def run_seeds(args: tuple[list[int], str, str, int]) -> list[Episode]:
+    seeds, control_mode, robot, max_steps = args
+    env = gym.make(
+        TASK, robot_uids=robot, control_mode=control_mode, obs_mode="state_dict", max_episode_steps=max_steps
+    )
+    planner = env.unwrapped.make_expert()
     episodes = [run_episode(env, planner, seed) for seed in seeds]
     env.close()
     return episodes
 
 
-def run(n_seeds: int, workers: int, control_mode: str) -> list[Episode]:
-    seeds = list(range(n_seeds))
+def run(
+    n_seeds: int, workers: int, control_mode: str, robot: str = "panda", first: int = 0, max_steps: int = TASK_STEPS
+) -> list[Episode]:
+    seeds = list(range(first, first + n_seeds))
     if workers <= 1:
-        return run_seeds((seeds, control_mode))
-    chunks = [(seeds[i::workers], control_mode) for i in range(workers)]
+        return run_seeds((seeds, control_mode, robot, max_steps))
+    chunks = [(seeds[i::workers], control_mode, robot, max_steps) for i in range(workers)]
     with mp.get_context("spawn").Pool(workers) as pool:
         results = pool.map(run_seeds, chunks)
     return sorted((e for chunk in results for e in chunk), key=lambda e: e.seed)
 
 
-def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
+def report(
+    episodes: list[Episode], seconds: float, control_mode: str, robot: str = "panda", max_steps: int = TASK_STEPS
+) -> str:
     n = len(episodes)
     wins = [e for e in episodes if e.success]
-    lines = [f"LiftPegUpright-v1 expert ({control_mode}): {len(wins)}/{n} succeeded ({100.0 * len(wins) / n:.1f}%)"]
+    title = f"LiftPegUpright-v1 {robot} expert ({control_mode}, {max_steps}-step limit)"
+    lines = [f"{title}: {len(wins)}/{n} succeeded ({100.0 * len(wins) / n:.1f}%)"]
+    if max_steps != TASK_STEPS:
+        within = sum(e.steps <= TASK_STEPS for e in wins)
+        lines.append(f"within the task's {TASK_STEPS} steps: {within}/{n} ({100.0 * within / n:.1f}%)")
     if wins:
         steps = np.array([e.steps for e in wins])
         lines.append(
             f"steps over successes: median {np.median(steps):.0f}, p90 {np.percentile(steps, 90):.0f}, "
-            f"max {steps.max()} (limit 50)"
+            f"max {steps.max()} (limit {max_steps})"
         )
     retried = sum(e.grasp_attempts > 1 for e in episodes)
     lines.append(f"episodes that re-grasped: {retried} ({sum(e.grasp_attempts > 1 for e in wins)} of them succeeded)")
@@ -101,13 +114,16 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=500, help="run seeds 0..N-1")
+    parser.add_argument("--robot", default="panda", choices=("panda", "fetch"), help="whose expert (default panda)")
+    parser.add_argument("--seeds", type=int, default=500, help="run N seeds")
+    parser.add_argument("--first", type=int, default=0, help="the first seed (default 0)")
+    parser.add_argument("--max-steps", type=int, default=TASK_STEPS, help="episode step limit (default the task's 50)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument("--control-mode", default="pd_joint_pos", help="any control mode (default pd_joint_pos)")
     args = parser.parse_args()
     start = time.perf_counter()
-    episodes = run(args.seeds, args.workers, args.control_mode)
-    print(report(episodes, time.perf_counter() - start, args.control_mode))
+    episodes = run(args.seeds, args.workers, args.control_mode, args.robot, args.first, args.max_steps)
+    print(report(episodes, time.perf_counter() - start, args.control_mode, args.robot, args.max_steps))
 
 
 if __name__ == "__main__":

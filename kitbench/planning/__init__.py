@@ -1,6 +1,7 @@
 """Scripted experts: the machinery they share, one concept a module, and one planner module per task.
 
-- `poses`: 4x4 pose maths and path shapes (interpolation, ease-in/out, Bezier curves), `HAND_DOWN`.
+- `poses`: 4x4 pose maths and path shapes (interpolation, ease-in/out, Bezier curves), `HAND_DOWN`, and
+  `upright_correction` (the hand motion that stands a held object upright).
 - `timing`: time-optimal parametrisation of a joint path within the Panda's velocity and acceleration limits.
 - `ik`: `ArmIK`, TCP pose paths to timed joint targets.
 - `phases`: `Step`, `PhaseSequencer` and the gripper commands `OPEN` / `CLOSED`.

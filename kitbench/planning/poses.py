@@ -61,6 +61,18 @@ def cubic_bezier(p0, p1, p2, p3, s: float) -> np.ndarray:
     return u**3 * p0 + 3 * u * u * s * p1 + 3 * u * s * s * p2 + s**3 * p3
 
 
+def upright_correction(pose: np.ndarray, goal_height: float) -> np.ndarray:
+    """The world transform that stands a held object upright (its x axis vertical, turned about the horizontal
+    axis of its tilt) with its centre at `goal_height`: applied to the hand holding it, it carries the object
+    there as it is held now."""
+    axis = pose[:3, 0] if pose[2, 0] >= 0 else -pose[:3, 0]
+    tilt = math.acos(min(1.0, abs(float(axis[2]))))
+    rotvec = np.cross(axis, [0.0, 0.0, 1.0])
+    rotvec *= tilt / max(float(np.linalg.norm(rotvec)), 1e-12)
+    goal = make_pose(axis_angle_to_matrix(rotvec) @ pose[:3, :3], pose[:3, 3] + [0.0, 0.0, goal_height - pose[2, 3]])
+    return goal @ np.linalg.inv(pose)
+
+
 __all__ = [
     "HAND_DOWN",
     "cubic_bezier",
@@ -71,4 +83,5 @@ __all__ = [
     "rot_z",
     "rotation_angle",
     "smoothstep",
+    "upright_correction",
 ]

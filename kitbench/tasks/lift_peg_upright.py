@@ -69,7 +69,10 @@ class LiftPegUprightEnv(TabletopEnv):
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
     failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
-    expert: ClassVar[dict[str, str | type]] = {"panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner"}
+    expert: ClassVar[dict[str, str | type]] = {
+        "panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner",
+        "fetch": "kitbench.planning.lift_peg_upright_fetch:FetchLiftPegUprightPlanner",
+    }
 
     def _load_task(self, scene, render):
         self.peg_scale = self.object_scale
