@@ -87,5 +87,12 @@ def task_entry(name: str) -> TaskEntry:
 
 
 def make_env(task: str, **kwargs) -> gym.Env:
-    """`gymnasium.make` for a kitbench task by its short name (or gym id), with a clear error for unknown names."""
-    return gym.make(task_entry(task).gym_id, **kwargs)
+    """`gymnasium.make` for a kitbench task by its short name (or gym id), with a clear error for unknown names,
+    and the step limit of the chosen robot (`TabletopEnv.robot_max_episode_steps`) unless one is given."""
+    entry = task_entry(task)
+    if kwargs.get("max_episode_steps") is None:
+        kwargs.pop("max_episode_steps", None)
+        steps = entry.env_class.episode_steps(kwargs.get("robot_uids"))
+        if steps != entry.max_episode_steps:
+            kwargs["max_episode_steps"] = steps
+    return gym.make(entry.gym_id, **kwargs)

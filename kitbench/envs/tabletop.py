@@ -73,6 +73,9 @@ class TabletopEnv(gym.Env, abc.ABC):
     failure_categories: ClassVar[tuple[str, ...]] = ()
     # (id key, name key) of `episode_config()` by which reports break success down, e.g. per shape; None: none.
     report_groups: ClassVar[tuple[str, str] | None] = None
+    # Step limits of robots that need longer than the task's own (`max_episode_steps`) to do it: kitbench's
+    # `make_env` (record, eval, the LeRobot plugin) applies them; with gym.make pass max_episode_steps yourself.
+    robot_max_episode_steps: ClassVar[dict[str, int]] = {}
     # Whether `_load_task` builds the task's object to `object_scale` (and `evaluate` measures it as built): the
     # `object_scale` perturbation is refused by tasks that do not.
     supports_object_scale: ClassVar[bool] = False
@@ -220,6 +223,12 @@ class TabletopEnv(gym.Env, abc.ABC):
             module, _, name = entry.partition(":")
             entry = getattr(importlib.import_module(module), name)
         return entry(self)
+
+    @classmethod
+    def episode_steps(cls, robot_uid: str | None = None) -> int:
+        """The step limit of an episode with `robot_uid` (None: the task's default robot)."""
+        robot = robot_uid or cls.supported_robots[0]
+        return cls.robot_max_episode_steps.get(robot, cls.max_episode_steps)
 
     @classmethod
     def has_expert(cls) -> bool:

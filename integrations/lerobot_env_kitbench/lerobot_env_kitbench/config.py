@@ -56,7 +56,7 @@ class KitbenchEnvConfig(EnvConfig):
     control_mode: str = "pd_joint_delta_pos"
     # The robot the policy was trained on (its dataset's meta/kitbench_recording.json); default: the task's first.
     robot: str | None = None
-    # Steps before an episode is cut off; default: the task's own step limit.
+    # Steps before an episode is cut off; default: the task's own step limit for the robot (Fetch: 130).
     episode_length: int | None = None
     # How the env renders for lerobot's evaluation videos.
     render_mode: str = "rgb_array"
@@ -90,8 +90,10 @@ class KitbenchEnvConfig(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         kwargs = {"obs_type": self.obs_type, "control_mode": self.control_mode, "render_mode": self.render_mode}
-        if self.episode_length is not None:
-            kwargs["max_episode_steps"] = self.episode_length
+        # the robot's own step limit (Fetch needs longer than the task's default), unless one is asked for
+        steps = self.episode_length or TASKS[self.task].env_class.episode_steps(self.robot)
+        if steps != TASKS[self.task].max_episode_steps:
+            kwargs["max_episode_steps"] = steps
         if self.perturbations:
             kwargs["perturbations"] = dict(self.perturbations)
         if self.robot is not None:
