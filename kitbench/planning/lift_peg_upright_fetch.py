@@ -11,8 +11,13 @@ far end clears the table all the way and stops `set_down_clearance` above it, th
 Timing: every motion is timed as fast as Fetch's joint velocity and acceleration limits allow
 (`ik.ArmIK.plan`). This motion does not fit the task's 50 control steps: both halves turn the wrist by about
 two radians (wrist_flex from the folded ready pose, +2.08 rad, to ~0 at the grasp and back to ~+1.6 with the
-hand down), each at least ~1.6 s (32 steps) at 3 rad/s^2, and the shoulder (1.5 rad/s^2) lifts the arm out and
-back. Measured (seeds 0-99, `pd_joint_pos`, step limit raised to 150): 100/100, median 97 steps, max 110.
+hand down), each at least ~1.8 s (36 steps) at the real arm's 2.5 rad/s^2, and the shoulder lift (1.0 rad/s,
+1.0 rad/s^2) lifts the arm out and back. Measured over seeds 0-499 (`bench/expert_lift_peg.py --robot fetch
+--seeds 500 --max-steps 250`) within the real arm's limits (`kitbench.robots.fetch`): `pd_joint_pos` 500/500,
+median 121 steps, p90 131, max 138; `pd_joint_delta_pos` 500/500, median 128, p90 137, max 145. With the looser
+limits first assumed (3 rad/s^2, shoulder lift 1.454 rad/s): median 96 / 109, max 109 / 121. The task gives
+Fetch 170 steps (`LiftPegUprightEnv.robot_max_episode_steps`). The alternatives below were timed under those
+first limits; their order does not depend on them.
 Measured alternatives, steps from the ready pose (rest to rest, pegs at x0 in {-0.1, 0, 0.1}):
 - approach, hand horizontal (pitch 0): 59-64 steps as a Cartesian line, 39-45 as a joint-space line; pitched
   0.3 / 0.6 rad down: 49-56 / 41-47 Cartesian, 36-42 / 34-37 joint-space (so: joint space, 0.6 rad);

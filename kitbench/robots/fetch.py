@@ -36,10 +36,12 @@ FINGER_LINKS = ("l_gripper_finger_link", "r_gripper_finger_link")
 # The reference's "rest" keyframe: torso fully up (0.386 m), head tilted down at the table, arm folded forward.
 READY_ARM_QPOS = (-0.370, -1.032, 0.695, 0.955, -0.1, 2.077, 0.0)
 BODY_READY = (0.0, 0.562, 0.386)
-# The URDF's joint velocity limits; accelerations are not in it: 3 rad/s^2 (1.5 for the shoulder) keeps the
-# scripted motions well inside what the reference's PD gains track.
-ARM_VELOCITY_LIMITS = (1.256, 1.454, 1.571, 1.521, 1.571, 2.268, 2.268)
-ARM_ACCELERATION_LIMITS = (1.5, 1.5, 3.0, 3.0, 3.0, 3.0, 3.0)
+# The real arm's limits, as the robot's maker configures its motion planner (fetch_ros, fetch_moveit_config/config/
+# joint_limits.yaml): velocities at or below the URDF's (the shoulder lift 1.0 rad/s against the URDF's 1.454),
+# accelerations 1.0-2.5 rad/s^2. The experts' timing keeps within them, so demonstrations are motions the real
+# Fetch can make.
+ARM_VELOCITY_LIMITS = (1.256, 1.0, 1.57, 1.5, 1.57, 2.26, 2.26)
+ARM_ACCELERATION_LIMITS = (1.5, 1.0, 1.5, 1.5, 1.5, 2.5, 2.5)
 # The SRDF's pairs (SAPIEN's loader, given no SRDF, would keep them colliding).
 SELF_COLLISION_IGNORED = (
     ("torso_fixed_link", "torso_lift_link"),

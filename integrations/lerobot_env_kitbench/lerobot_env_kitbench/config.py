@@ -56,7 +56,7 @@ class KitbenchEnvConfig(EnvConfig):
     control_mode: str = "pd_joint_delta_pos"
     # The robot the policy was trained on (its dataset's meta/kitbench_recording.json); default: the task's first.
     robot: str | None = None
-    # Steps before an episode is cut off; default: the task's own step limit for the robot (Fetch: 130).
+    # Steps before an episode is cut off; default: the task's own step limit for the robot (Fetch: 170).
     episode_length: int | None = None
     # How the env renders for lerobot's evaluation videos.
     render_mode: str = "rgb_array"
