@@ -249,7 +249,8 @@ def markdown(report: dict) -> str:
         f"Suite `{suite['name']}`"
         + (f" ({suite['source']})" if suite.get("source") else "")
         + f": {report['episodes']} episodes, seeds {suite['seeds'][0]}…{suite['seeds'][-1]}, "
-        f"obs `{suite['obs_mode']}`, control `{suite['control_mode']}`, reward `{suite['reward_mode']}`. "
+        f"robot `{suite.get('robot', '?')}`, obs `{suite['obs_mode']}`, control `{suite['control_mode']}`, "
+        f"reward `{suite['reward_mode']}`. "
         f"kitbench {report['kitbench_version']}.",
         "",
         f"**Success: {_pct(report['success'])}** ({_headline_text(report)})",
