@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from kitbench.kits.board import BOARD_MARGIN, SLOT_FLOOR, layout_problems, placed_slot_polygons
+from kitbench.kits.clearance import SLOT_CLEARANCE
 from kitbench.kits.episodes import (
     FORMAT,
     MIN_SLOT_GAP,
@@ -23,7 +24,7 @@ from kitbench.kits.episodes import (
     load_episodes,
     validate_episodes,
 )
-from kitbench.kits.shapes import NUM_SHAPES
+from kitbench.kits.shapes import NUM_SHAPES, place, slot_outline
 
 
 @pytest.fixture(scope="module")
@@ -105,6 +106,36 @@ def test_load_packaged_file():
     assert len(b.slot_polygons) == len(ep.slots)
 
 
+def test_the_packaged_kits_are_those_laid_out_with_two_millimetre_pockets(default_data):
+    """Seeds keep their meaning: the per-shape pockets (all smaller) are cut into the kits laid out before, when every
+    pocket had 2 mm (format version 1): same slots, targets, seated shapes and colours."""
+    assert default_data["board"]["clearance"] == list(SLOT_CLEARANCE)
+    assert generate_episodes(clearance=0.002)["episodes"] == default_data["episodes"]
+
+
+def test_version_1_files_keep_one_clearance_for_every_pocket(small_valid, tmp_path):
+    data = copy.deepcopy(small_valid)
+    data["version"] = 1
+    data["board"]["clearance"] = 0.003
+    path = tmp_path / "v1.json"
+    path.write_text(json.dumps(data))
+    assert load_episodes(path).board.clearance == (0.003,) * NUM_SHAPES
+    del data["board"]["clearance"]
+    path.write_text(json.dumps(data))
+    eps = load_episodes(path)
+    assert eps.board.clearance == (0.002,) * NUM_SHAPES  # version 1's default
+    board = eps.board_geometry(0)
+    sid, x, y, yaw = eps[0].slot_poses()[0]
+    assert board.slot_polygons[0].equals_exact(place(slot_outline(sid, 0.002), x, y, yaw), 1e-12)
+
+
+def test_version_2_files_may_give_one_clearance_for_every_pocket(small_valid):
+    data = copy.deepcopy(small_valid)
+    data["board"]["clearance"] = 0.0025
+    assert validate_episodes(data).board.clearance == (0.0025,) * NUM_SHAPES
+    assert validate_episodes(small_valid).board.clearance == SLOT_CLEARANCE
+
+
 def test_round_trip(tmp_path, default_data):
     small = generate_episodes(5, seed=1)
     path = tmp_path / "kits.json"
@@ -164,8 +195,18 @@ def _in_place_twice(d):
 E0 = ("episodes", 0)
 BAD_CASES = {
     "wrong_format": (_set(("format",), "maniskill/kits"), "format: expected 'kitbench/assembling-kits-episodes'"),
-    "wrong_version": (_set(("version",), 2), "version: unsupported version 2 (int) (supported: 1)"),
+    "wrong_version": (_set(("version",), 3), "version: unsupported version 3 (int) (supported: 1, 2)"),
     "version_as_string": (_set(("version",), "1"), "version: unsupported version"),
+    "missing_clearance": (_delete(("board", "clearance")), "board: missing field 'clearance'"),
+    "clearance_per_shape_count": (
+        _set(("board", "clearance"), [0.001, 0.002]),
+        "board.clearance: expected 20 entries, got 2",
+    ),
+    "clearance_negative": (_set(("board", "clearance", 4), -0.001), "board.clearance[4]: -0.001 outside [0.0,"),
+    "clearance_v1_list": (
+        lambda d: d.update(version=1),
+        "board.clearance: expected a number, got [",
+    ),
     "missing_episodes": (_delete(("episodes",)), "missing field 'episodes'"),
     "empty_episodes": (_set(("episodes",), []), "episodes: expected at least 1 entry"),
     "missing_board": (_delete(("board",)), "missing field 'board'"),
@@ -290,4 +331,4 @@ def test_unknown_optional_fields_are_ignored(small_valid):
     data["note"] = "hand-edited"
     data["episodes"][0]["comment"] = "extra"
     assert len(validate_episodes(data, source="x")) == 3
-    assert FORMAT == data["format"] and VERSION == 1
+    assert FORMAT == data["format"] and VERSION == 2

@@ -14,7 +14,8 @@ from shapely.geometry import Polygon, box
 from shapely.ops import unary_union
 
 import kitbench.kits as kits
-from kitbench.kits.board import BOARD_SIZE, POCKET_DEPTH, SLOT_FLOOR, board_geometry
+from kitbench.kits.board import BOARD_SIZE, POCKET_DEPTH, SLOT_FLOOR, board_geometry, pocket_clearances
+from kitbench.kits.clearance import SLOT_CLEARANCE
 from kitbench.kits.convex import convex_decompose, extrude_convex, is_convex_polygon, mesh_volume
 from kitbench.kits.shapes import (
     DEFAULT_PAD_WIDTH,
@@ -244,10 +245,11 @@ def test_slot_outline_is_shape_plus_clearance(shape_id, clearance):
 
 
 def test_slot_placement_follows_yaw():
-    slot = slot_outline(6)  # rectangle, long axis along x
+    slot = slot_outline(6)  # rectangle, long axis along x, with its own clearance
+    c = SLOT_CLEARANCE[6]
     placed = place(slot, 0.01, -0.02, math.pi / 2)
     minx, miny, maxx, maxy = placed.bounds
-    assert (maxx - minx) == pytest.approx(0.024 + 0.004) and (maxy - miny) == pytest.approx(0.050 + 0.004)
+    assert (maxx - minx) == pytest.approx(0.024 + 2 * c) and (maxy - miny) == pytest.approx(0.050 + 2 * c)
     assert placed.centroid.x == pytest.approx(0.01) and placed.centroid.y == pytest.approx(-0.02)
 
 
@@ -276,6 +278,37 @@ def test_board_pieces_are_exact(slots):
     assert mesh_volume(b.visual_vertices, b.visual_faces) == pytest.approx(
         0.20 * 0.28 * SLOT_FLOOR + b.top_polygon.area * POCKET_DEPTH, rel=1e-5
     )
+
+
+@pytest.mark.parametrize("slots", [TYPICAL_KIT, ROUND_KIT], ids=["typical", "disc_and_ring"])
+def test_board_collision_mesh_is_its_closed_surface(slots):
+    """What PhysX collides with: one welded, closed, outward-facing mesh of the board's surface, every pocket a
+    wall ring down to a floor, no internal faces (the convex pieces' internal faces are what misled the contact
+    generation: kits/board.py)."""
+    b = board_geometry(slots)
+    v, f = b.collision_mesh
+    assert v.dtype == np.float32 and f.dtype == np.int32 and f.min() >= 0 and f.max() < len(v)
+    assert len(np.unique(np.round(v.astype(np.float64), 9), axis=0)) == len(v)  # welded
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    assert len({tuple(e) for e in directed.tolist()}) == len(directed)  # each directed edge once: consistent winding
+    _, count = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    assert set(count.tolist()) == {2}  # closed
+    assert mesh_volume(v, f) == pytest.approx(0.20 * 0.28 * SLOT_FLOOR + b.top_polygon.area * POCKET_DEPTH, rel=1e-6)
+    assert sorted(set(np.round(v[:, 2], 7).tolist())) == pytest.approx([0.0, SLOT_FLOOR, SLOT_FLOOR + POCKET_DEPTH])
+
+
+def test_board_clearance_forms():
+    """None: every shape its own; one number: every pocket; a sequence: one per shape id."""
+    assert pocket_clearances(None) == SLOT_CLEARANCE
+    assert pocket_clearances(0.003) == (0.003,) * NUM_SHAPES
+    assert pocket_clearances(list(SLOT_CLEARANCE)) == SLOT_CLEARANCE
+    with pytest.raises(ValueError, match="one clearance per shape id"):
+        pocket_clearances([0.001, 0.002])
+    with pytest.raises(ValueError, match=">= 0"):
+        pocket_clearances(-0.001)
+    b = board_geometry(TYPICAL_KIT)
+    for (sid, x, y, yaw), poly in zip(TYPICAL_KIT, b.slot_polygons, strict=True):
+        assert poly.equals_exact(place(slot_outline(sid, SLOT_CLEARANCE[sid]), x, y, yaw), 1e-12)
 
 
 def test_board_slot_polygons_are_placed_slots():

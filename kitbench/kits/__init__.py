@@ -1,9 +1,10 @@
 """Procedural geometry and episode data for AssemblingKits (no simulator imports).
 
-shapes   - the 20 kit shapes: outlines, exact convex pieces, symmetry, grasp widths
-board    - the kit board with its pockets, as exact convex pieces plus a visual mesh
-episodes - the versioned episode file format, its generator and validating loader
-convex   - polygon -> convex pieces (constrained Delaunay + Hertel-Mehlhorn) and prism extrusion
+shapes    - the 20 kit shapes: outlines, exact convex pieces, symmetry, grasp widths
+clearance - pocket clearance per shape, from the largest yaw a shape may fit its pocket at
+board     - the kit board with its pockets: collision mesh, exact convex pieces, visual mesh
+episodes  - the versioned episode file format, its generator and validating loader
+convex    - polygon -> convex pieces (constrained Delaunay + Hertel-Mehlhorn), prism extrusion, meshes
 
 The public names below are re-exported lazily (PEP 562) so that
 ``python -m kitbench.kits.episodes`` does not import its own module twice and
@@ -22,13 +23,19 @@ if TYPE_CHECKING:
         BOARD_MARGIN as BOARD_MARGIN,
         BOARD_SIZE as BOARD_SIZE,
         BOARD_TOP as BOARD_TOP,
-        DEFAULT_CLEARANCE as DEFAULT_CLEARANCE,
         POCKET_DEPTH as POCKET_DEPTH,
         SLOT_FLOOR as SLOT_FLOOR,
         BoardGeometry as BoardGeometry,
         board_geometry as board_geometry,
         layout_problems as layout_problems,
         placed_slot_polygons as placed_slot_polygons,
+    )
+    from kitbench.kits.clearance import (
+        DEFAULT_CLEARANCE as DEFAULT_CLEARANCE,
+        MAX_SEATED_YAW as MAX_SEATED_YAW,
+        SLOT_CLEARANCE as SLOT_CLEARANCE,
+        max_seated_yaw as max_seated_yaw,
+        required_clearance as required_clearance,
     )
     from kitbench.kits.convex import (
         convex_decompose as convex_decompose,
@@ -73,7 +80,6 @@ _EXPORTS: dict[str, str] = {
             "BOARD_MARGIN",
             "BOARD_SIZE",
             "BOARD_TOP",
-            "DEFAULT_CLEARANCE",
             "POCKET_DEPTH",
             "SLOT_FLOOR",
             "BoardGeometry",
@@ -82,6 +88,9 @@ _EXPORTS: dict[str, str] = {
             "placed_slot_polygons",
         ],
         "board",
+    ),
+    **dict.fromkeys(
+        ["DEFAULT_CLEARANCE", "MAX_SEATED_YAW", "SLOT_CLEARANCE", "max_seated_yaw", "required_clearance"], "clearance"
     ),
     **dict.fromkeys(
         ["convex_decompose", "extrude_convex", "extrude_mesh", "is_convex_polygon", "mesh_volume"], "convex"

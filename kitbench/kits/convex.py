@@ -1,9 +1,11 @@
-"""Convex decomposition of 2D polygons and extrusion to 3D prisms.
+"""Convex decomposition of 2D polygons, extrusion to 3D prisms, and triangle meshes of extruded outlines.
 
-PhysX only collides convex hulls, so every non-convex solid in the kit task (the
-board with its pockets, the L/T/star shapes) has to be handed to SAPIEN as a
-list of convex pieces.  All solids here are vertical extrusions of 2D outlines,
-so a 2D convex decomposition extruded over a z range is exact.
+A dynamic PhysX body collides only as convex hulls, so every non-convex shape
+in the kit task (the L/T/star shapes) is handed to SAPIEN as a list of convex
+pieces; the static board collides as one triangle mesh of its surface
+(board.py says why) and keeps its convex decomposition as data.  All solids
+here are vertical extrusions of 2D outlines, so a 2D convex decomposition
+extruded over a z range is exact.
 
 The decomposition is the classic Hertel-Mehlhorn scheme: triangulate the
 polygon (holes included), then greedily delete internal diagonals whose
@@ -230,7 +232,7 @@ def extrude_mesh(geom: Polygon | MultiPolygon, z0: float, z1: float) -> tuple[np
         if poly.is_empty or poly.area <= 0:
             continue
         parts.append(_extrude_caps(poly, z0, z1))
-        parts.extend(_extrude_walls(ring, z0, z1) for ring in polygon_rings(poly))
+        parts.extend(wall_mesh(ring, z0, z1) for ring in polygon_rings(poly))
     return merge_meshes(parts)
 
 
@@ -242,7 +244,7 @@ def _extrude_caps(poly: Polygon, z0: float, z1: float) -> tuple[np.ndarray, np.n
     return v, f
 
 
-def _extrude_walls(ring: np.ndarray, z0: float, z1: float) -> tuple[np.ndarray, np.ndarray]:
+def wall_mesh(ring: np.ndarray, z0: float, z1: float) -> tuple[np.ndarray, np.ndarray]:
     """One quad per ring edge; exterior CCW / holes CW puts the material on the left, so normals face out."""
     p = np.asarray(ring, dtype=np.float64)
     q = np.roll(p, -1, axis=0)
@@ -269,6 +271,21 @@ def merge_meshes(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray
         faces.append(np.asarray(f, dtype=np.int64) + offset)
         offset += len(v)
     return np.vstack(verts).astype(np.float32), np.vstack(faces).astype(np.int32)
+
+
+def cap_mesh(poly: Polygon, z: float, up: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The triangulated polygon (holes allowed) at height z, facing up (or down)."""
+    verts, tris = triangulate(poly)
+    return np.column_stack([verts, np.full(len(verts), z)]), (tris if up else tris[:, ::-1])
+
+
+def weld_mesh(vertices: np.ndarray, faces: np.ndarray, grid: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """One vertex per position (positions within `grid` metres of a grid point merge), faces re-indexed: what a
+    collision mesh needs for PhysX to see which triangles are neighbours."""
+    v = np.asarray(vertices, dtype=np.float64)
+    keys = np.round(v / grid).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return v[first].astype(np.float32), inverse.reshape(-1)[np.asarray(faces)].astype(np.int32)
 
 
 def box_mesh(x0: float, y0: float, x1: float, y1: float, z0: float, z1: float) -> tuple[np.ndarray, np.ndarray]:

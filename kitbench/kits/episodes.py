@@ -1,4 +1,4 @@
-"""AssemblingKits episode files: schema (version 1), generator, loader and validator.
+"""AssemblingKits episode files: schema (version 2; version 1 is still read), generator, loader and validator.
 
 An episode fixes everything random about a kit scene except the loose
 object's start pose: which shapes sit in which pockets at which yaw, which one
@@ -28,23 +28,29 @@ from kitbench.kits.board import (
     BOARD_MARGIN,
     BOARD_SIZE,
     BOARD_TOP,
-    DEFAULT_CLEARANCE,
     POCKET_DEPTH,
     SLOT_FLOOR,
     BoardGeometry,
+    Clearance,
     SlotPose,
     board_geometry,
     layout_problems,
     placed_slot_polygons,
+    pocket_clearances,
 )
+from kitbench.kits.clearance import DEFAULT_CLEARANCE, SLOT_CLEARANCE
 from kitbench.kits.shapes import NUM_SHAPES
 
 FORMAT = "kitbench/assembling-kits-episodes"
-VERSION = 1
+# Version 2: `board.clearance` may be one clearance per shape id; the generator writes kitbench's own
+# (clearance.SLOT_CLEARANCE). A version 1 file (one clearance for every pocket, 2 mm by default) reads as it always
+# did.
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 SLOTS_PER_KIT = 5
 DEFAULT_EPISODES = 300
 DEFAULT_FILE = "episodes.json"
-ROUND_DIGITS = 5  # 1e-5 m / rad: far below the 2 mm clearance, keeps the file small
+ROUND_DIGITS = 5  # 1e-5 m / rad: far below the smallest clearance (0.69 mm), keeps the file small
 
 # Ten well-separated object colours (Tableau-10 without its grey, plus yellow).
 PALETTE: tuple[tuple[float, float, float], ...] = (
@@ -74,6 +80,9 @@ ROW2_Y = (-0.045, 0.045)
 POSITION_JITTER = 0.004
 # The generator keeps at least this much board between neighbouring pockets.
 MIN_SLOT_GAP = 0.004
+# ...measured between pockets cut with at least this clearance, whatever their own: the 300 default kits were laid
+# out with 2 mm pockets, and per-shape clearances (all smaller) leave every one of them as it was.
+LAYOUT_CLEARANCE = DEFAULT_CLEARANCE
 _MAX_LAYOUT_ATTEMPTS = 200
 
 
@@ -101,7 +110,7 @@ class BoardSpec:
     size: tuple[float, float] = BOARD_SIZE
     top: float = BOARD_TOP
     pocket_depth: float = POCKET_DEPTH
-    clearance: float = DEFAULT_CLEARANCE
+    clearance: tuple[float, ...] = SLOT_CLEARANCE  # pocket clearance per shape id (m)
 
     @property
     def floor(self) -> float:
@@ -193,7 +202,12 @@ class EpisodeSet:
         return {
             "format": FORMAT,
             "version": VERSION,
-            "board": {"size": list(b.size), "top": b.top, "pocket_depth": b.pocket_depth, "clearance": b.clearance},
+            "board": {
+                "size": list(b.size),
+                "top": b.top,
+                "pocket_depth": b.pocket_depth,
+                "clearance": list(b.clearance),
+            },
             "episodes": [e.to_dict() for e in self.episodes],
         }
 
@@ -209,8 +223,11 @@ def _slot_positions(rng: np.random.Generator) -> list[tuple[float, float]]:
     return row3 + row2
 
 
-def _random_layout(rng: np.random.Generator, shapes: Sequence[int], clearance: float) -> list[dict[str, Any]]:
-    """Jittered template positions and uniform yaws, retried until the layout is valid after rounding."""
+def _random_layout(
+    rng: np.random.Generator, shapes: Sequence[int], clearance: tuple[float, ...]
+) -> list[dict[str, Any]]:
+    """Jittered template positions and uniform yaws, retried until the layout is valid after rounding, with pockets
+    cut at `clearance` (per shape id)."""
     centres = _slot_positions(rng)
     for _ in range(_MAX_LAYOUT_ATTEMPTS):
         jitter = rng.uniform(-POSITION_JITTER, POSITION_JITTER, size=(len(shapes), 2))
@@ -229,7 +246,7 @@ def _r(x: float) -> float:
     return round(float(x), ROUND_DIGITS)
 
 
-def _generate_episode(rng: np.random.Generator, index: int, clearance: float) -> dict[str, Any]:
+def _generate_episode(rng: np.random.Generator, index: int, clearance: tuple[float, ...]) -> dict[str, Any]:
     target = index % NUM_SHAPES
     others = rng.choice([s for s in range(NUM_SHAPES) if s != target], size=SLOTS_PER_KIT - 1, replace=False)
     shapes = [target, *(int(s) for s in others)]
@@ -251,22 +268,31 @@ def _generate_episode(rng: np.random.Generator, index: int, clearance: float) ->
     }
 
 
-def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: float = DEFAULT_CLEARANCE) -> dict[str, Any]:
-    """Deterministic episode set as a schema-v1 dict.
+def generate_episodes(n: int = DEFAULT_EPISODES, seed: int = 0, clearance: Clearance = None) -> dict[str, Any]:
+    """Deterministic episode set as a schema-v2 dict.
 
     The target shape cycles through ids 0..19 so every shape is the object to
     place n/20 times; everything else comes from one seeded numpy Generator,
     consumed in a fixed order, so (n, seed, clearance) fully determine the output.
+    Pockets are cut with `clearance` (default: each shape's own, SLOT_CLEARANCE)
+    and laid out as if each had at least LAYOUT_CLEARANCE.
     """
     if n < 1:
         raise KitbenchError(f"n must be >= 1, got {n}")
+    clearances = pocket_clearances(clearance)
+    spacing = tuple(max(c, LAYOUT_CLEARANCE) for c in clearances)
     rng = np.random.default_rng(seed)
     return {
         "format": FORMAT,
         "version": VERSION,
-        "board": {"size": list(BOARD_SIZE), "top": BOARD_TOP, "pocket_depth": POCKET_DEPTH, "clearance": clearance},
+        "board": {
+            "size": list(BOARD_SIZE),
+            "top": BOARD_TOP,
+            "pocket_depth": POCKET_DEPTH,
+            "clearance": list(clearances),
+        },
         "generator": {"function": "kitbench.kits.episodes.generate_episodes", "n": n, "seed": seed},
-        "episodes": [_generate_episode(rng, i, clearance) for i in range(n)],
+        "episodes": [_generate_episode(rng, i, spacing) for i in range(n)],
     }
 
 
@@ -365,16 +391,22 @@ def _describe(value: Any) -> str:
     return f"{text} ({type(value).__name__})"
 
 
-def _check_board(c: _Checker, data: dict[str, Any]) -> BoardSpec:
+def _check_board(c: _Checker, data: dict[str, Any], version: int) -> BoardSpec:
     board = c.obj(c.field(data, "board", ""), "board")
     size = c.vec(c.field(board, "size", "board"), "board.size", 2, positive=True)
     top = c.num(c.field(board, "top", "board"), "board.top", positive=True)
     depth = c.num(c.field(board, "pocket_depth", "board"), "board.pocket_depth", positive=True)
     if depth >= top:
         c.fail("board.pocket_depth", f"pocket depth {depth} must be less than the board top {top}")
-    clearance = DEFAULT_CLEARANCE
-    if "clearance" in board:
-        clearance = c.num(board["clearance"], "board.clearance", lo=0.0)
+    if version == 1:  # one optional clearance for every pocket
+        uniform = c.num(board["clearance"], "board.clearance", lo=0.0) if "clearance" in board else DEFAULT_CLEARANCE
+        clearance = (uniform,) * NUM_SHAPES
+    else:  # required: one for every pocket, or one per shape id
+        value = c.field(board, "clearance", "board")
+        if isinstance(value, list):
+            clearance = c.vec(value, "board.clearance", NUM_SHAPES, lo=0.0)
+        else:
+            clearance = (c.num(value, "board.clearance", lo=0.0),) * NUM_SHAPES
     return BoardSpec(size=(size[0], size[1]), top=top, pocket_depth=depth, clearance=clearance)
 
 
@@ -458,16 +490,17 @@ def _check_episode(c: _Checker, ep: Any, i: int, board: BoardSpec) -> Episode:
 
 
 def validate_episodes(data: Any, source: str = "<episodes>") -> EpisodeSet:
-    """Check a parsed episode document against schema v1 and build the EpisodeSet."""
+    """Check a parsed episode document against schema v2 (or v1) and build the EpisodeSet."""
     c = _Checker(source)
     data = c.obj(data, "(top level)")
     fmt = c.field(data, "format", "")
     if fmt != FORMAT:
         c.fail("format", f"expected {FORMAT!r}, got {_describe(fmt)}")
     version = c.field(data, "version", "")
-    if isinstance(version, bool) or version != VERSION:
-        c.fail("version", f"unsupported version {_describe(version)} (supported: {VERSION})")
-    board = _check_board(c, data)
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
+        supported = ", ".join(str(v) for v in READABLE_VERSIONS)
+        c.fail("version", f"unsupported version {_describe(version)} (supported: {supported})")
+    board = _check_board(c, data, version)
     raw = c.array(c.field(data, "episodes", ""), "episodes", min_len=1)
     episodes = tuple(_check_episode(c, ep, i, board) for i, ep in enumerate(raw))
     return EpisodeSet(source=source, board=board, episodes=episodes)

@@ -31,6 +31,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import unary_union
 
 from kitbench.errors import KitbenchError
+from kitbench.kits.clearance import SLOT_CLEARANCE
 from kitbench.kits.convex import extrude_convex, extrude_mesh
 
 NUM_SHAPES = 20
@@ -316,11 +317,15 @@ def _cached_slot(shape_id: int, clearance: float) -> Polygon:
     return offset_outline(shape_outline(shape_id), clearance)
 
 
-def slot_outline(shape_id: int, clearance: float = 0.002) -> Polygon:
-    """The pocket outline for a shape in the shape frame: its exterior grown by `clearance` per side."""
+def slot_outline(shape_id: int, clearance: float | None = None) -> Polygon:
+    """The pocket outline for a shape in the shape frame: its exterior grown by `clearance` per side (default: the
+    shape's own, `clearance.SLOT_CLEARANCE`)."""
+    shape_id = check_shape_id(shape_id)
+    if clearance is None:
+        clearance = SLOT_CLEARANCE[shape_id]
     if not clearance >= 0:
         raise KitbenchError(f"clearance must be >= 0, got {clearance!r}")
-    return _cached_slot(check_shape_id(shape_id), float(clearance))
+    return _cached_slot(shape_id, float(clearance))
 
 
 def place(poly: Polygon, x: float, y: float, yaw: float) -> Polygon:

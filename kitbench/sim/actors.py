@@ -1,4 +1,4 @@
-"""Actors from in-memory geometry: convex collision pieces plus a triangle-mesh visual.
+"""Actors from in-memory geometry: convex collision pieces or a static triangle mesh, plus a triangle-mesh visual.
 
 Procedural assets (kit boards, shapes) never touch the disk; visuals are attached only in scenes that render.
 """
@@ -10,9 +10,11 @@ import sapien
 from sapien import physx
 
 # PhysX cooks convex hulls with a fixed plane tolerance of 0.7 mm (PxCookingParams::planeTolerance, not exposed by
-# SAPIEN): a kit board cooked in metres loses corners and turns thin pieces into wedges up to 0.7 mm off their
-# outline, a third of the slot clearance. Cooking the vertices in millimetres (x1000) and scaling the
-# shape back by 1/1000 keeps every cooked hull within 0.11 mm of the exact piece (tests/test_kit_physics.py).
+# SAPIEN): cooked in metres, a kit shape's pieces come out up to 0.48 mm off their outline (a board's, 0.7 mm), most
+# of a pocket's 0.69-1.57 mm clearance. Cooking the vertices in millimetres (x1000) and scaling the shape back by
+# 1/1000 keeps the shapes' hulls exact (tests/test_kit_physics.py). (Scales of 10 and 100 cook as exactly; which
+# scale is used moved, but did not remove, the contact failures that the board's triangle mesh fixed:
+# kits/board.py.)
 COOKING_SCALE = 1000.0
 
 
@@ -38,6 +40,38 @@ def _flat_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return normals.astype(np.float32)
 
 
+def _visual_body(visual: tuple[np.ndarray, np.ndarray], color) -> sapien.render.RenderBodyComponent:
+    vertices, faces = visual
+    vertices = np.ascontiguousarray(vertices, dtype=np.float32)
+    faces = np.ascontiguousarray(faces, dtype=np.uint32)
+    mat = sapien.render.RenderMaterial(base_color=[*color[:3], 1.0], roughness=0.6, specular=0.2)
+    shape = sapien.render.RenderShapeTriangleMesh(
+        vertices, faces, _flat_normals(vertices, faces), np.zeros((len(vertices), 2), np.float32), mat
+    )
+    body = sapien.render.RenderBodyComponent()
+    body.attach(shape)
+    return body
+
+
+def _add_entity(
+    scene: sapien.Scene,
+    name: str,
+    component: physx.PhysxRigidBaseComponent,
+    visual: tuple[np.ndarray, np.ndarray] | None,
+    color,
+    pose: sapien.Pose | None,
+) -> sapien.Entity:
+    entity = sapien.Entity()
+    entity.name = name
+    if visual is not None:
+        entity.add_component(_visual_body(visual, color))
+    entity.add_component(component)
+    if pose is not None:
+        entity.pose = pose
+    scene.add_entity(entity)
+    return entity
+
+
 def build_convex_actor(
     scene: sapien.Scene,
     name: str,
@@ -54,19 +88,7 @@ def build_convex_actor(
 
     `contact_offset` (metres) overrides the scene's default for these pieces only.
     """
-    entity = sapien.Entity()
-    entity.name = name
-    if visual is not None:
-        vertices, faces = visual
-        vertices = np.ascontiguousarray(vertices, dtype=np.float32)
-        faces = np.ascontiguousarray(faces, dtype=np.uint32)
-        mat = sapien.render.RenderMaterial(base_color=[*color[:3], 1.0], roughness=0.6, specular=0.2)
-        shape = sapien.render.RenderShapeTriangleMesh(
-            vertices, faces, _flat_normals(vertices, faces), np.zeros((len(vertices), 2), np.float32), mat
-        )
-        body = sapien.render.RenderBodyComponent()
-        body.attach(shape)
-        entity.add_component(body)
+    component: physx.PhysxRigidBaseComponent
     if body_type == "static":
         component = physx.PhysxRigidStaticComponent()
     elif body_type == "dynamic":
@@ -79,8 +101,31 @@ def build_convex_actor(
         if contact_offset is not None:
             shape.set_contact_offset(contact_offset)
         component.attach(shape)
-    entity.add_component(component)
-    if pose is not None:
-        entity.pose = pose
-    scene.add_entity(entity)
-    return entity
+    return _add_entity(scene, name, component, visual, color, pose)
+
+
+def build_static_mesh_actor(
+    scene: sapien.Scene,
+    name: str,
+    mesh: tuple[np.ndarray, np.ndarray],
+    visual: tuple[np.ndarray, np.ndarray] | None,
+    color,
+    material: physx.PhysxMaterial,
+    pose: sapien.Pose | None = None,
+    contact_offset: float | None = None,
+) -> sapien.Entity:
+    """A static actor that collides as one triangle mesh (`mesh`: welded vertices (N,3) in metres, faces (M,3)
+    wound outward). Triangle meshes are not cooked into hulls, so the vertices are used as they are (PhysX allows
+    them on static bodies only). `contact_offset` (metres) overrides the scene's default for the mesh."""
+    vertices, faces = mesh
+    shape = physx.PhysxCollisionShapeTriangleMesh(
+        np.ascontiguousarray(vertices, dtype=np.float32),
+        np.ascontiguousarray(faces, dtype=np.uint32),
+        np.ones(3, dtype=np.float32),
+        material,
+    )
+    if contact_offset is not None:
+        shape.set_contact_offset(contact_offset)
+    component = physx.PhysxRigidStaticComponent()
+    component.attach(shape)
+    return _add_entity(scene, name, component, visual, color, pose)

@@ -31,7 +31,7 @@ from kitbench.errors import KitbenchError
 from kitbench.geometry import planar_yaw, quat_to_matrix, yaw_quat
 from kitbench.kits import NUM_SHAPES, Episode, EpisodeSet, load_episodes, shape_geometry
 from kitbench.registration import register_env
-from kitbench.sim.actors import build_convex_actor
+from kitbench.sim.actors import build_convex_actor, build_static_mesh_actor
 from kitbench.sim.cameras import CameraSpec
 
 POS_TOLERANCE = 0.02  # m
@@ -42,8 +42,9 @@ SPAWN_Y = (-0.182, 0.182)
 SPAWN_MARGIN = 0.004  # m kept between a spawned shape and any pocket or the board edge
 SHAPE_DENSITY = 600.0  # kg/m^3, a plastic-like block of 12-27 g
 # PhysX pairs two materials at the lower friction. At 0.5 a shape dropped 10 degrees off its slot yaw slides and
-# turns itself into the pocket; at 1.0 most stay out, as a real block on a wooden board does (over every default
-# kit 30 of 270 such drops still tip in and turn themselves straight, most of them the pointed kite).
+# turns itself into the pocket; at 1.0 most stay out, as a real block on a wooden board does (with 2 mm pockets 30
+# of 270 such drops still tipped in and turned themselves straight, most of them the pointed kite; with each
+# shape's own, narrower pocket none of 540 does: docs/kit-physics.md).
 SHAPE_FRICTION = 1.0
 BOARD_FRICTION = 1.0
 MAX_DENSE_REWARD = 7.0
@@ -169,13 +170,13 @@ class AssemblingKitsEnv(TabletopEnv):
         board = self._board(episode_index)
         board_material = physx.PhysxMaterial(BOARD_FRICTION, BOARD_FRICTION, 0.0)
         visual = (board.visual_vertices, board.visual_faces) if render else None
-        self.board = build_convex_actor(
+        # One triangle mesh of the board's surface, not its convex pieces: kits/board.py and docs/kit-physics.md.
+        self.board = build_static_mesh_actor(
             self.scene,
             "kit",
-            board.convex_pieces,
+            board.collision_mesh,
             visual,
             episode.board_color,
-            "static",
             board_material,
             contact_offset=KIT_CONTACT_OFFSET,
         )
