@@ -17,7 +17,7 @@ the limit computed from the outline (`kitbench.kits.clearance.max_seated_yaw`).
 
 `--seeds` picks the kits as the issue that led to these sweeps did, by env reset seed 0..N-1 (the env draws the
 kit from the seed; some kits come twice, others never) instead of every kit once. These are the figures behind
-docs/kit-physics.md (about 3 minutes on one core).
+docs/kit-physics.md (90 s on one core).
 """
 
 from __future__ import annotations
