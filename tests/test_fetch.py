@@ -204,7 +204,6 @@ def test_fetch_is_refused_by_a_task_that_does_not_support_it():
 def test_fetch_cameras_see_the_scene_and_the_hand_camera_moves_with_the_gripper():
     env = _env(obs_mode="rgb")
     obs, _ = env.reset(seed=0)
-    u = env.unwrapped
     assert set(obs["sensor_data"]) == {"base_camera", "fetch_head", "fetch_hand"}
     for name in ("fetch_head", "fetch_hand"):
         image = obs["sensor_data"][name]["rgb"]
@@ -216,7 +215,6 @@ def test_fetch_cameras_see_the_scene_and_the_hand_camera_moves_with_the_gripper(
         obs, *_ = env.step(action)
     after = obs["sensor_param"]["fetch_hand"]["cam2world_gl"]
     assert np.linalg.norm(after[:3, 3] - before[:3, 3]) > 0.02
-    del u
 
 
 # -- recording, evaluation, policies --------------------------------------------------------------------
