@@ -71,6 +71,8 @@ HAND_CAMERA = CameraSpec("fetch_hand", 128, 128, 2.0, (-0.1, 0.0, 0.1), mount="g
 TABLE_HEIGHT = 0.92  # the table top is z = 0; the base stands on the floor below it
 
 
+# Imported on first use: the asset module's downloader (urllib, html.parser) adds ~11 ms to `import kitbench`,
+# which most runs, Panda-only, never need.
 def _urdf() -> Path:
     from kitbench.robots.fetch_assets import fetch_urdf_path
 
