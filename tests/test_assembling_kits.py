@@ -138,6 +138,26 @@ def test_policy_state_codes_the_shape_and_folds_its_yaw_by_symmetry(env, shape_i
     assert np.linalg.norm(folded[0]) == pytest.approx(1.0)
 
 
+def test_policy_state_gives_the_turns_a_hand_regulates(env):
+    """The hand's yaw over the shape's, folded by the gripper's two-fold symmetry, and the turn still needed to the
+    goal, folded by the shape's: [1, 0] when aligned, whichever equivalent yaw, and off it otherwise."""
+    env.reset(seed=0, options={"episode_index": _episode_with_target(env, 0)})  # asymmetric L block
+    names = env.environment_state_names()
+
+    def field(name):
+        state = env.environment_state()
+        return state[[i for i, n in enumerate(names) if n.startswith(name + ".")]]
+
+    tcp_yaw = math.atan2(*field("tcp_yaw")[::-1])
+    for turn in (0.0, math.pi):  # fingers closing the same way
+        env.obj.set_pose(sapien.Pose([0.05, 0.1, 0.05], yaw_quat(tcp_yaw + 0.4 + turn)))
+        np.testing.assert_allclose(field("tcp_to_obj_yaw"), [math.cos(0.8), math.sin(0.8)], atol=1e-4)
+    _place(env)
+    np.testing.assert_allclose(field("obj_to_goal_yaw"), [1.0, 0.0], atol=1e-5)
+    _place(env, dyaw=-0.3)
+    np.testing.assert_allclose(field("obj_to_goal_yaw"), [math.cos(0.3), math.sin(0.3)], atol=1e-4)
+
+
 # -- physics (drops into every default kit: tests/test_kit_physics.py) ------------------------------
 def test_seated_shape_keeps_success_for_200_steps(env):
     env.reset(seed=0, options={"episode_index": _episode_with_target(env, 10)})

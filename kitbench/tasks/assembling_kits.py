@@ -92,7 +92,10 @@ class AssemblingKitsEnv(TabletopEnv):
     # opening and symmetry are per shape; as one normalised integer a policy trained on 400 demonstrations
     # never learned the grasp, 0% on its own training seeds), yaws as cos/sin with no wrap-around, the
     # shape's and the goal's yaw also folded by the shape's symmetry (what the grasp and the insertion depend
-    # on), and the hand-to-shape and shape-to-goal vectors.
+    # on), and the hand-to-shape and shape-to-goal vectors. The three relative yaws are what an end-effector
+    # delta action regulates: the hand's yaw, the hand's yaw over the shape's (folded by the gripper's own
+    # two-fold symmetry: the fingers close the same way at yaw and yaw + pi), and the turn still needed to the goal
+    # (folded by the shape's symmetry; [1, 0] once aligned).
     environment_state_keys = (
         "obj_pose",
         "obj_yaw_sym",
@@ -102,6 +105,9 @@ class AssemblingKitsEnv(TabletopEnv):
         "goal_yaw_sym",
         "obj_to_goal_pos",
         "shape_onehot",
+        "tcp_yaw",
+        "tcp_to_obj_yaw",
+        "obj_to_goal_yaw",
     )
     success_criteria = ("pos_correct", "rot_correct", "in_slot")
     failure_categories = ("never_grasped", "dropped", "not_transported", "misaligned", "not_inserted")
@@ -288,14 +294,17 @@ class AssemblingKitsEnv(TabletopEnv):
 
     def task_state(self):
         obj = self.obj.pose
-        tcp = self.robot.tcp_pose().p
+        tcp_pose = self.robot.tcp_pose()
+        tcp = tcp_pose.p
         goal = self.goal_pos.astype(np.float32)
         symmetry = self.shape.symmetry
+        obj_yaw = planar_yaw(quat_to_matrix(obj.q))
+        tcp_yaw = planar_yaw(quat_to_matrix(tcp_pose.q))
         onehot = np.zeros(NUM_SHAPES, dtype=np.float32)
         onehot[self.shape.shape_id] = 1.0
         return {
             "obj_pose": pose7(obj),
-            "obj_yaw_sym": folded_yaw(planar_yaw(quat_to_matrix(obj.q)), symmetry),
+            "obj_yaw_sym": folded_yaw(obj_yaw, symmetry),
             "tcp_to_obj_pos": (obj.p - tcp).astype(np.float32),
             "goal_pos": goal,
             "goal_rot": np.array([self.goal_rot], dtype=np.float32),
@@ -305,6 +314,9 @@ class AssemblingKitsEnv(TabletopEnv):
             "shape_id": np.array([self.shape.shape_id], dtype=np.int32),
             "shape_onehot": onehot,
             "symmetry": np.array([symmetry], dtype=np.float32),
+            "tcp_yaw": np.array([math.cos(tcp_yaw), math.sin(tcp_yaw)], dtype=np.float32),
+            "tcp_to_obj_yaw": folded_yaw(obj_yaw - tcp_yaw, math.pi),
+            "obj_to_goal_yaw": folded_yaw(self.goal_rot - obj_yaw, symmetry),
         }
 
     def compute_dense_reward(self, info):
