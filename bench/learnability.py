@@ -5,7 +5,8 @@
         [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
 
 For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
-trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above),
+trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above;
+torch gets the cores the config's loader workers leave, at least one: OMP_NUM_THREADS, unless already set),
 scores the final checkpoint on the task's standard suite (`kitbench eval`) and prints one row per run: parameters,
 training minutes (wall clock: imports, dataset loading and model set-up count), steps/s of the training loop (dated
 by lerobot's log; the config's in-training env evaluations count), success k/n with its Wilson 95% interval, the
@@ -59,6 +60,12 @@ OBS_CHOICES = ("state", "rgb")
 ENV_OBS_TYPE = {"state": "state", "rgb": "pixels_state"}  # the lerobot env config's name for each
 # the data never comes from the Hub (dataset.root is local), and a stray lookup must not stall a long run
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1"}
+# lerobot-train's config has no thread setting. torch's intra-op threads default to one per core, and on a machine
+# with few cores they fight the data loader's worker processes for them: ACT 4.2 M on 2 cores, batch 32, trained
+# at 7.5-8.2 steps/s with torch's 2 threads (0, 1 or 2 workers) and at 13.5 steps/s with 1 thread and 2 workers,
+# whose loading (~2 ms a sample in `datasets`) then runs beside the update instead of against it
+# (docs/learnability.md). So training gets the cores the workers leave, at least one, unless the caller chose.
+THREADS_VAR = "OMP_NUM_THREADS"
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 LOG_TAIL_LINES = 30
 
@@ -91,6 +98,7 @@ class Plan:
     control_mode: str  # the recording's, which training and evaluation must use too
     control_mode_flag: str | None
     config_has_env: bool  # the config evaluates on a kitbench env during training, which needs the control mode
+    train_threads: str  # torch's intra-op threads for lerobot-train (OMP_NUM_THREADS)
     action_noise: float | None
     settle_steps: int | None
     suite_episodes: int | None
@@ -204,6 +212,9 @@ def check_args(args: argparse.Namespace) -> Plan:
             f"config {config} has env.control_mode {env['control_mode']} but recipe {recipe} records "
             f"{recorded_mode}; pass --control-mode to record, train and evaluate in one of them"
         )
+    workers = config_data.get("num_workers", 4)  # lerobot's default
+    if not isinstance(workers, int) or workers < 0:
+        raise UsageError(f"config {config} has num_workers {workers!r}; give a non-negative integer")
     suite = _default_path("eval/suites", f"{snake}.toml", "suite", "*.toml")
     try:
         seeds = len(load_suite(suite).seeds)
@@ -228,6 +239,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         control_mode=args.control_mode or recorded_mode,
         control_mode_flag=args.control_mode,
         config_has_env=bool(env),
+        train_threads=os.environ.get(THREADS_VAR) or str(max(1, (os.cpu_count() or 1) - workers)),
         action_noise=args.action_noise,
         settle_steps=args.settle_steps,
         suite_episodes=args.suite_episodes,
@@ -244,17 +256,25 @@ def log_tail(log: Path, lines: int = LOG_TAIL_LINES) -> str:
     return "\n".join(line.rsplit("\r", 1)[-1] for line in text.splitlines()[-lines:])
 
 
-def run_logged(command: list[str], log: Path) -> float:
-    """Run a command with its output in `log`; the wall-clock seconds it took, or CommandFailed."""
+def run_logged(command: list[str], log: Path, env: dict[str, str] | None = None) -> float:
+    """Run a command with its output in `log`, with the variables `env` set on top of ENV; the wall-clock seconds
+    it took, or CommandFailed."""
     log.parent.mkdir(parents=True, exist_ok=True)
     start = time.monotonic()
     with log.open("w") as f:
-        f.write(f"$ {shlex.join(command)}\n")
+        f.write(f"$ {shell_line(command, env)}\n")
         f.flush()
-        status = subprocess.run(command, stdout=f, stderr=subprocess.STDOUT, env=ENV, check=False).returncode
+        status = subprocess.run(
+            command, stdout=f, stderr=subprocess.STDOUT, env={**ENV, **(env or {})}, check=False
+        ).returncode
     if status != 0:
         raise CommandFailed(command, log, status)
     return time.monotonic() - start
+
+
+def shell_line(command: list[str], env: dict[str, str] | None = None) -> str:
+    """The command as one shell line, with the variables it is run with in front (`OMP_NUM_THREADS=1 lerobot-...`)."""
+    return " ".join([*(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items()), shlex.join(command)])
 
 
 def record_command(plan: Plan, demos: int, data: Path) -> list[str]:
@@ -352,12 +372,14 @@ def train(plan: Plan, data: Path, policy_dir: Path) -> dict:
         shutil.rmtree(train_dir)
     command = train_command(plan, data, train_dir)
     log = policy_dir / "train.log"
-    seconds = run_logged(command, log)
+    env = {THREADS_VAR: plan.train_threads}
+    seconds = run_logged(command, log, env)
     checkpoint = train_dir / "checkpoints" / "last" / "pretrained_model"
     train_config = json.loads((checkpoint / "train_config.json").read_text())
     params, source = count_parameters(log, checkpoint)
     return {
         "command": command,
+        "env": env,
         "dir": train_dir,
         "seconds": seconds,
         "steps": train_config["steps"],
@@ -461,7 +483,7 @@ def one_run(plan: Plan, demos: int) -> dict:
         "suite": str(plan.suite),
         "commands": {
             "record": shlex.join(record),
-            "train": shlex.join(trained["command"]),
+            "train": shell_line(trained["command"], trained["env"]),
             "eval": shlex.join(eval_cmd),
         },
         "paths": {"data": str(data), "train": str(trained["dir"]), "report": str(policy_dir / "eval" / REPORT_JSON)},
