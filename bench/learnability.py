@@ -61,10 +61,11 @@ ENV_OBS_TYPE = {"state": "state", "rgb": "pixels_state"}  # the lerobot env conf
 # the data never comes from the Hub (dataset.root is local), and a stray lookup must not stall a long run
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1"}
 # lerobot-train's config has no thread setting. torch's intra-op threads default to one per core, and on a machine
-# with few cores they fight the data loader's worker processes for them: ACT 4.2 M on 2 cores, batch 32, trained
-# at 7.5-8.2 steps/s with torch's 2 threads (0, 1 or 2 workers) and at 13.5 steps/s with 1 thread and 2 workers,
-# whose loading (~2 ms a sample in `datasets`) then runs beside the update instead of against it
-# (docs/learnability.md). So training gets the cores the workers leave, at least one, unless the caller chose.
+# with few cores they fight the data loader's worker processes for them: ACT 2.65 M on 2 cores, batch 32, trained
+# at 8.3 steps/s with torch's 2 threads and 1 worker (9.4 with 0 workers, 8.1 with 2) and at 14.1 steps/s with 1
+# thread and 2 workers, whose loading (~2 ms a sample in `datasets`) then runs beside the update instead of against
+# it (bench/train_throughput.py, one run). So training gets the cores the workers leave, at least one, unless the
+# caller chose.
 THREADS_VAR = "OMP_NUM_THREADS"
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 LOG_TAIL_LINES = 30
