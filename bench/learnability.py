@@ -554,8 +554,9 @@ def plot(results: list[dict], task: str, obs: str, path: Path) -> None:
         xs = sorted(by_demos)
         demos_seen.update(xs)
         rates = [by_demos[d]["success"]["rate"] for d in xs]
-        lo = [rate - by_demos[d]["success"]["ci95"][0] for d, rate in zip(xs, rates, strict=True)]
-        hi = [by_demos[d]["success"]["ci95"][1] - rate for d, rate in zip(xs, rates, strict=True)]
+        # clipped at 0: rows written before the interval's ends were exact hold a bound ~1e-18 past the rate
+        lo = [max(0.0, rate - by_demos[d]["success"]["ci95"][0]) for d, rate in zip(xs, rates, strict=True)]
+        hi = [max(0.0, by_demos[d]["success"]["ci95"][1] - rate) for d, rate in zip(xs, rates, strict=True)]
         label = policy + (f" [{tag}]" if tag else "")
         ax.errorbar(xs, rates, yerr=[lo, hi], marker="o", capsize=4, label=label)
     ax.set_xscale("log", base=2)  # demo counts are usually doubled from run to run

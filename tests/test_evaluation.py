@@ -32,6 +32,14 @@ def test_wilson_interval_matches_published_values(k, n, lo, hi):
     assert a == pytest.approx(lo, abs=1e-4) and b == pytest.approx(hi, abs=1e-4)
 
 
+@pytest.mark.parametrize("n", [1, 7, 10, 50, 100, 200, 1000])
+def test_wilson_interval_ends_are_exact_at_none_and_all(n):
+    """0/N starts at exactly 0 and N/N ends at exactly 1: a bound a rounding error past the rate (0/200 gave
+    1.7e-18) makes a negative error bar, which matplotlib refuses to draw."""
+    assert wilson_interval(0, n)[0] == 0.0 and wilson_interval(n, n)[1] == 1.0
+    assert 0.0 < wilson_interval(0, n)[1] and wilson_interval(n, n)[0] < 1.0
+
+
 def test_describe_quantiles_and_empty():
     d = describe(range(1, 11))
     assert d["n"] == 10 and d["mean"] == 5.5 and d["median"] == 5.5 and d["min"] == 1 and d["max"] == 10

@@ -18,7 +18,11 @@ def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float,
     z2 = z * z
     centre = (p + z2 / (2 * trials)) / (1 + z2 / trials)
     half = z * math.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials)) / (1 + z2 / trials)
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # at 0/N and N/N the bound is exactly 0 or 1; the subtraction leaves ~1e-18 (0/200: 1.7e-18), which put a
+    # point's lower error bar below zero and made matplotlib refuse to draw it
+    lo = 0.0 if successes <= 0 else max(0.0, centre - half)
+    hi = 1.0 if successes >= trials else min(1.0, centre + half)
+    return lo, hi
 
 
 def rate(successes: int, trials: int) -> dict:
