@@ -46,6 +46,7 @@ from pathlib import Path
 import kitbench
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.errors import KitbenchError
+from kitbench.evaluation.plots import error_bars
 from kitbench.evaluation.runner import REPORT_JSON
 from kitbench.evaluation.stats import wilson_interval
 from kitbench.evaluation.suite import load_suite
@@ -553,12 +554,9 @@ def plot(results: list[dict], task: str, obs: str, path: Path) -> None:
     for (policy, tag), by_demos in sorted(lines.items(), key=lambda kv: (kv[0][0], kv[0][1] or "")):
         xs = sorted(by_demos)
         demos_seen.update(xs)
-        rates = [by_demos[d]["success"]["rate"] for d in xs]
-        # clipped at 0: rows written before the interval's ends were exact hold a bound ~1e-18 past the rate
-        lo = [max(0.0, rate - by_demos[d]["success"]["ci95"][0]) for d, rate in zip(xs, rates, strict=True)]
-        hi = [max(0.0, by_demos[d]["success"]["ci95"][1] - rate) for d, rate in zip(xs, rates, strict=True)]
+        successes = [by_demos[d]["success"] for d in xs]
         label = policy + (f" [{tag}]" if tag else "")
-        ax.errorbar(xs, rates, yerr=[lo, hi], marker="o", capsize=4, label=label)
+        ax.errorbar(xs, [s["rate"] for s in successes], yerr=error_bars(successes), marker="o", capsize=4, label=label)
     ax.set_xscale("log", base=2)  # demo counts are usually doubled from run to run
     ax.set_xticks(sorted(demos_seen), [str(d) for d in sorted(demos_seen)])
     ax.minorticks_off()

@@ -14,9 +14,10 @@ import kitbench
 from kitbench.envs.grasp import GraspHistory
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.outcomes import failure_category
+from kitbench.evaluation.plots import error_bars
 from kitbench.evaluation.report import without_timing
 from kitbench.evaluation.runner import EvalConfig, pick_video_seeds, run_eval
-from kitbench.evaluation.stats import describe, wilson_interval
+from kitbench.evaluation.stats import describe, rate, wilson_interval
 from kitbench.evaluation.suite import Suite, adhoc_suite, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,6 +39,16 @@ def test_wilson_interval_ends_are_exact_at_none_and_all(n):
     1.7e-18) makes a negative error bar, which matplotlib refuses to draw."""
     assert wilson_interval(0, n)[0] == 0.0 and wilson_interval(n, n)[1] == 1.0
     assert 0.0 < wilson_interval(0, n)[1] and wilson_interval(n, n)[0] < 1.0
+
+
+def test_error_bars_are_never_negative_and_measure_from_the_rate():
+    """A results file written before the ends were exact holds 0/200 as [1.7e-18, 0.0188]: its bar below is 0,
+    not -1.7e-18 (which matplotlib refuses); other bars are the interval's distances from the rate."""
+    old = {"rate": 0.0, "ci95": [1.734723475976807e-18, 0.018845326377266575]}
+    below, above = error_bars([old, rate(8, 200)])
+    assert below[0] == 0.0 and above[0] == pytest.approx(0.018845326377266575)
+    lo, hi = wilson_interval(8, 200)
+    assert below[1] == pytest.approx(0.04 - lo) and above[1] == pytest.approx(hi - 0.04)
 
 
 def test_describe_quantiles_and_empty():

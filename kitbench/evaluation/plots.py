@@ -16,11 +16,16 @@ def _figure(width: float = 6.0, height: float = 3.6, **grid):
     return plt, *plt.subplots(figsize=(width, height), dpi=100, **grid)
 
 
+def error_bars(rates: list[dict]) -> list[list[float]]:
+    """matplotlib's `yerr` (below, above) for rates as `stats.rate` writes them, clipped at 0: an interval's
+    ends may carry rounding error past the rate (files written before `wilson_interval` made 0/N and N/N exact
+    hold 1.7e-18 at 0/200), and matplotlib refuses a negative error bar."""
+    return [[max(0.0, r["rate"] - r["ci95"][0]) for r in rates], [max(0.0, r["ci95"][1] - r["rate"]) for r in rates]]
+
+
 def _rates(ax, labels, rows):
     rates = [r["rate"] for r in rows]
-    low = [max(0.0, r["rate"] - r["ci95"][0]) for r in rows]  # the interval's ends carry rounding error
-    high = [max(0.0, r["ci95"][1] - r["rate"]) for r in rows]
-    ax.bar(range(len(rows)), rates, yerr=[low, high], capsize=3, color="#4c72b0")
+    ax.bar(range(len(rows)), rates, yerr=error_bars(rows), capsize=3, color="#4c72b0")
     ax.set_xticks(
         range(len(rows)), labels, rotation=45 if len(rows) > 6 else 0, ha="right" if len(rows) > 6 else "center"
     )
@@ -104,11 +109,9 @@ def _robustness(report: dict, path: Path, title: str) -> Path:
         )
         levels = [p[0] for p in points]
         rates = [p[1]["rate"] for p in points]
-        low = [max(0.0, p[1]["rate"] - p[1]["ci95"][0]) for p in points]
-        high = [max(0.0, p[1]["ci95"][1] - p[1]["rate"]) for p in points]
         ax.axhspan(*nominal["ci95"], color="0.85", zorder=0)
         ax.axhline(nominal["rate"], color="0.4", lw=1, label="nominal")
-        ax.errorbar(levels, rates, yerr=[low, high], marker="o", capsize=3, color="#4c72b0")
+        ax.errorbar(levels, rates, yerr=error_bars([p[1] for p in points]), marker="o", capsize=3, color="#4c72b0")
         ax.set_ylim(0, 1.05)
         ax.set_title(name, fontsize=9)
         ax.set_xlabel(conditions[0]["unit"], fontsize=8)
