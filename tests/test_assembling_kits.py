@@ -14,7 +14,7 @@ import sapien
 import kitbench  # noqa: F401
 from kitbench.geometry import axis_quat, matrix_to_quat, quat_to_matrix, yaw_quat
 from kitbench.kits import SYMMETRY, EpisodeFileError
-from kitbench.tasks.assembling_kits import AssemblingKitsEnv, yaw_error
+from kitbench.tasks.assembling_kits import AssemblingKitsEnv, signed_yaw_error, yaw_error
 
 TASK = "kitbench/AssemblingKits-v1"
 HOLD = np.array([0, 0, 0, 0, 0, 0, 0, -1], dtype=np.float32)
@@ -53,6 +53,13 @@ def _place(env, dx=0.0, dy=0.0, dz=0.0, dyaw=0.0, tilt=0.0):
 )
 def test_yaw_error_modulo_symmetry(yaw, goal, sym, expected):
     assert yaw_error(yaw, goal, sym) == pytest.approx(expected, abs=1e-9)
+    assert abs(signed_yaw_error(yaw, goal, sym)) == pytest.approx(expected, abs=1e-9)
+
+
+def test_signed_yaw_error_is_the_turn_to_make():
+    assert signed_yaw_error(0.1, 0.0, 2 * math.pi) == pytest.approx(-0.1)
+    assert signed_yaw_error(3.1, -3.1, 2 * math.pi) == pytest.approx(2 * math.pi - 6.2)  # across the seam
+    assert signed_yaw_error(0.0, math.pi / 2 - 0.01, math.pi / 2) == pytest.approx(-0.01)  # square: back a little
 
 
 # -- success flags on constructed poses ------------------------------------------------------------
@@ -156,6 +163,30 @@ def test_policy_state_gives_the_turns_a_hand_regulates(env):
     np.testing.assert_allclose(field("obj_to_goal_yaw"), [1.0, 0.0], atol=1e-5)
     _place(env, dyaw=-0.3)
     np.testing.assert_allclose(field("obj_to_goal_yaw"), [math.cos(0.3), math.sin(0.3)], atol=1e-4)
+
+
+def test_policy_state_resolves_the_insertions_millimetre(env):
+    """`obj_to_goal_fine` is the shape-to-goal offset and the signed turn on the scale the insertion is corrected at:
+    0 when seated, a millimetre or a degree moves it by a large fraction of its range, and it saturates on the way;
+    `tcp_to_obj_fine` the same for the grasp at a centimetre."""
+    env.reset(seed=0, options={"episode_index": _episode_with_target(env, 0)})  # asymmetric L block
+    names = env.environment_state_names()
+
+    def field(name):
+        return env.environment_state()[[i for i, n in enumerate(names) if n.startswith(name + ".")]]
+
+    _place(env)
+    np.testing.assert_allclose(field("obj_to_goal_fine"), [0.0, 0.0, 0.0], atol=1e-4)
+    _place(env, dx=0.001, dyaw=math.radians(-1.0))  # goal - shape: -1 mm in x, +1 degree to turn
+    np.testing.assert_allclose(field("obj_to_goal_fine"), [math.tanh(-1 / 3), 0.0, math.tanh(0.5)], atol=2e-3)
+    symmetry = SYMMETRY[0]
+    _place(env, dyaw=symmetry - math.radians(1.0))  # the same turn, one symmetry period around
+    assert field("obj_to_goal_fine")[2] == pytest.approx(math.tanh(0.5), abs=2e-3)
+    _place(env, dx=-0.05, dy=0.05)
+    np.testing.assert_allclose(field("obj_to_goal_fine")[:2], [1.0, -1.0], atol=1e-4)
+    tcp = env.robot.tcp_pose().p
+    env.obj.set_pose(sapien.Pose([tcp[0] + 0.005, tcp[1] - 0.02, 0.05], yaw_quat(0.0)))
+    np.testing.assert_allclose(field("tcp_to_obj_fine"), [math.tanh(0.5), math.tanh(-2.0)], atol=1e-3)
 
 
 # -- physics (drops into every default kit: tests/test_kit_physics.py) ------------------------------

@@ -48,6 +48,10 @@ SHAPE_DENSITY = 600.0  # kg/m^3, a plastic-like block of 12-27 g
 SHAPE_FRICTION = 1.0
 BOARD_FRICTION = 1.0
 MAX_DENSE_REWARD = 7.0
+# Scales of the policy state's `*_fine` fields (see AssemblingKitsEnv.environment_state_keys).
+FINE_GRASP_SCALE = 0.01  # m
+FINE_INSERT_SCALE = 0.003  # m
+FINE_TURN_SCALE = math.radians(2.0)
 BOARD_CACHE_SIZE = 32
 # Contact offset (m) of the kit's board, seated shapes and loose shape, instead of the scene's 2 cm. PhysX's
 # persistent contact manifold reports phantom penetrations of 18-20 mm between a shape's few-millimetre pieces and
@@ -66,6 +70,13 @@ def folded_yaw(yaw: float, symmetry: float) -> np.ndarray:
         return np.array([1.0, 0.0], dtype=np.float32)
     k = 2 * math.pi / symmetry
     return np.array([math.cos(k * yaw), math.sin(k * yaw)], dtype=np.float32)
+
+
+def signed_yaw_error(yaw: float, goal_yaw: float, symmetry: float) -> float:
+    """Signed turn (rad) taking `yaw` to the nearest yaw equivalent to `goal_yaw`: within +-symmetry/2."""
+    if symmetry <= 0:  # any rotation is equivalent (disc, ring)
+        return 0.0
+    return float((goal_yaw - yaw + symmetry / 2) % symmetry - symmetry / 2)
 
 
 def yaw_error(yaw: float, goal_yaw: float, symmetry: float) -> float:
@@ -95,7 +106,13 @@ class AssemblingKitsEnv(TabletopEnv):
     # on), and the hand-to-shape and shape-to-goal vectors. The three relative yaws are what an end-effector
     # delta action regulates: the hand's yaw, the hand's yaw over the shape's (folded by the gripper's own
     # two-fold symmetry: the fingers close the same way at yaw and yaw + pi), and the turn still needed to the goal
-    # (folded by the shape's symmetry; [1, 0] once aligned).
+    # (folded by the shape's symmetry; [1, 0] once aligned). The two `*_fine` fields are the grasp's and the
+    # insertion's errors on the scale they are corrected at: tanh of the table-plane offset over 1 cm (hand to
+    # shape) and 3 mm (shape to goal), and of the signed turn to the goal over 2 degrees. Normalised by the
+    # dataset's spread (800 demonstrations: 5 and 11 cm in x and y), a millimetre off the goal is 0.02 and 0.01 of
+    # a unit in `obj_to_goal_pos` and 0.42 in `obj_to_goal_fine` (spread 0.77); the expert re-aims until the shape
+    # is within 0.5 mm and 0.75 degrees (planning/assembling_kits.py). Measured: 5 -> 11 of 200 seated, with
+    # 400 demonstrations (docs/learnability.md).
     environment_state_keys = (
         "obj_pose",
         "obj_yaw_sym",
@@ -108,6 +125,8 @@ class AssemblingKitsEnv(TabletopEnv):
         "tcp_yaw",
         "tcp_to_obj_yaw",
         "obj_to_goal_yaw",
+        "tcp_to_obj_fine",
+        "obj_to_goal_fine",
     )
     success_criteria = ("pos_correct", "rot_correct", "in_slot")
     failure_categories = ("never_grasped", "dropped", "not_transported", "misaligned", "not_inserted")
@@ -317,6 +336,16 @@ class AssemblingKitsEnv(TabletopEnv):
             "tcp_yaw": np.array([math.cos(tcp_yaw), math.sin(tcp_yaw)], dtype=np.float32),
             "tcp_to_obj_yaw": folded_yaw(obj_yaw - tcp_yaw, math.pi),
             "obj_to_goal_yaw": folded_yaw(self.goal_rot - obj_yaw, symmetry),
+            "tcp_to_obj_fine": np.tanh((obj.p[:2] - tcp[:2]) / FINE_GRASP_SCALE).astype(np.float32),
+            "obj_to_goal_fine": np.tanh(
+                np.array(
+                    [
+                        (goal[0] - obj.p[0]) / FINE_INSERT_SCALE,
+                        (goal[1] - obj.p[1]) / FINE_INSERT_SCALE,
+                        signed_yaw_error(obj_yaw, self.goal_rot, symmetry) / FINE_TURN_SCALE,
+                    ]
+                )
+            ).astype(np.float32),
         }
 
     def compute_dense_reward(self, info):
