@@ -81,10 +81,7 @@ def signed_yaw_error(yaw: float, goal_yaw: float, symmetry: float) -> float:
 
 def yaw_error(yaw: float, goal_yaw: float, symmetry: float) -> float:
     """Smallest rotation (rad) taking `yaw` to a yaw equivalent to `goal_yaw` under the shape's symmetry."""
-    if symmetry <= 0:  # any rotation is equivalent (disc, ring)
-        return 0.0
-    d = (yaw - goal_yaw) % symmetry
-    return float(min(d, symmetry - d))
+    return abs(signed_yaw_error(yaw, goal_yaw, symmetry))
 
 
 @lru_cache(maxsize=8)
@@ -321,31 +318,28 @@ class AssemblingKitsEnv(TabletopEnv):
         tcp_yaw = planar_yaw(quat_to_matrix(tcp_pose.q))
         onehot = np.zeros(NUM_SHAPES, dtype=np.float32)
         onehot[self.shape.shape_id] = 1.0
+        tcp_to_obj = (obj.p - tcp).astype(np.float32)
+        to_goal = (goal - obj.p).astype(np.float32)
+        turn = signed_yaw_error(obj_yaw, self.goal_rot, symmetry)
         return {
             "obj_pose": pose7(obj),
             "obj_yaw_sym": folded_yaw(obj_yaw, symmetry),
-            "tcp_to_obj_pos": (obj.p - tcp).astype(np.float32),
+            "tcp_to_obj_pos": tcp_to_obj,
             "goal_pos": goal,
             "goal_rot": np.array([self.goal_rot], dtype=np.float32),
             "goal_yaw": np.array([math.cos(self.goal_rot), math.sin(self.goal_rot)], dtype=np.float32),
             "goal_yaw_sym": folded_yaw(self.goal_rot, symmetry),
-            "obj_to_goal_pos": (goal - obj.p).astype(np.float32),
+            "obj_to_goal_pos": to_goal,
             "shape_id": np.array([self.shape.shape_id], dtype=np.int32),
             "shape_onehot": onehot,
             "symmetry": np.array([symmetry], dtype=np.float32),
             "tcp_yaw": np.array([math.cos(tcp_yaw), math.sin(tcp_yaw)], dtype=np.float32),
             "tcp_to_obj_yaw": folded_yaw(obj_yaw - tcp_yaw, math.pi),
             "obj_to_goal_yaw": folded_yaw(self.goal_rot - obj_yaw, symmetry),
-            "tcp_to_obj_fine": np.tanh((obj.p[:2] - tcp[:2]) / FINE_GRASP_SCALE).astype(np.float32),
+            "tcp_to_obj_fine": np.tanh(tcp_to_obj[:2] / FINE_GRASP_SCALE),
             "obj_to_goal_fine": np.tanh(
-                np.array(
-                    [
-                        (goal[0] - obj.p[0]) / FINE_INSERT_SCALE,
-                        (goal[1] - obj.p[1]) / FINE_INSERT_SCALE,
-                        signed_yaw_error(obj_yaw, self.goal_rot, symmetry) / FINE_TURN_SCALE,
-                    ]
-                )
-            ).astype(np.float32),
+                np.array([*(to_goal[:2] / FINE_INSERT_SCALE), turn / FINE_TURN_SCALE], dtype=np.float32)
+            ),
         }
 
     def compute_dense_reward(self, info):
