@@ -1,8 +1,8 @@
 """Learnability of kitbench demonstrations: do policies trained with stock `lerobot-train` succeed in `kitbench eval`?
 
     python bench/learnability.py --task LiftPegUpright-v1 --obs state --demos 50,100,200 --policy act [--steps N]
-        [--out outputs/learnability] [--control-mode M] [--action-noise X] [--settle-steps K] [--suite-episodes E]
-        [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
+        [--out outputs/learnability] [--control-mode M] [--action-noise X] [--noise-phases P,Q] [--settle-steps K]
+        [--suite-episodes E] [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
 
 For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
 trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above;
@@ -102,6 +102,7 @@ class Plan:
     config_has_env: bool  # the config evaluates on a kitbench env during training, which needs the control mode
     train_threads: str  # torch's intra-op threads for lerobot-train (OMP_NUM_THREADS)
     action_noise: float | None
+    noise_phases: str | None  # comma-separated, as `kitbench record --noise-phases` takes them
     settle_steps: int | None
     suite_episodes: int | None
     tag: str | None
@@ -187,6 +188,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         raise UsageError(f"--action-noise must be a finite number >= 0, got {args.action_noise}")
     for flag, key, value in (
         ("--action-noise", "action_noise", args.action_noise),
+        ("--noise-phases", "noise_phases", args.noise_phases),
         ("--settle-steps", "settle_steps", args.settle_steps),
     ):
         if value is not None and key not in RECIPE_KEYS:
@@ -243,6 +245,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         config_has_env=bool(env),
         train_threads=os.environ.get(THREADS_VAR) or str(max(1, (os.cpu_count() or 1) - workers)),
         action_noise=args.action_noise,
+        noise_phases=args.noise_phases,
         settle_steps=args.settle_steps,
         suite_episodes=args.suite_episodes,
         tag=args.tag,
@@ -286,6 +289,8 @@ def record_command(plan: Plan, demos: int, data: Path) -> list[str]:
         command += ["--control-mode", plan.control_mode_flag]
     if plan.action_noise is not None:
         command += ["--action-noise", str(plan.action_noise)]
+    if plan.noise_phases is not None:
+        command += ["--noise-phases", plan.noise_phases]
     if plan.settle_steps is not None:
         command += ["--settle-steps", str(plan.settle_steps)]
     return command
@@ -478,6 +483,7 @@ def one_run(plan: Plan, demos: int) -> dict:
             "recipe": str(plan.recipe),
             "control_mode": plan.control_mode,
             "action_noise": recorded.get("action_noise", plan.action_noise),
+            "noise_phases": recorded.get("noise_phases", plan.noise_phases),
             "settle_steps": recorded.get("settle_steps", plan.settle_steps),
             "reused": reused,
         },
@@ -592,6 +598,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default="outputs/learnability", help="output folder (default outputs/learnability)")
     parser.add_argument("--control-mode", dest="control_mode", help="action space to record, train and evaluate in")
     parser.add_argument("--action-noise", dest="action_noise", type=float, help="passed to kitbench record")
+    parser.add_argument(
+        "--noise-phases", dest="noise_phases", help="passed to kitbench record (expert phases, comma-separated)"
+    )
     parser.add_argument("--settle-steps", dest="settle_steps", type=int, help="passed to kitbench record")
     parser.add_argument(
         "--suite-episodes", dest="suite_episodes", type=int, help="score on the suite's first E seeds (default all)"

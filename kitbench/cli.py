@@ -58,6 +58,7 @@ def _record(args) -> int:
         "commit_interval": args.commit_interval,
         "max_attempts": args.max_attempts,
         "action_noise": args.action_noise,
+        "noise_phases": None if args.noise_phases is None else tuple(args.noise_phases.split(",")),
         "settle_steps": args.settle_steps,
         "reward_mode": args.reward_mode,
         "executor": args.executor,
@@ -275,6 +276,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         help="execute actions with seeded Gaussian noise, in units of the control mode's noise unit (0.02 rad a "
         "joint); the dataset keeps the clean actions as labels (default 0: none)",
+    )
+    rec.add_argument(
+        "--noise-phases",
+        dest="noise_phases",
+        help="comma-separated expert phases the action noise runs in, e.g. transport,align (default: all phases)",
     )
     rec.add_argument(
         "--settle-steps",

@@ -245,6 +245,21 @@ def test_max_attempts_must_cover_the_episodes(workdir, capsys, value):
     assert _tree(workdir) == ["recipe.toml"]
 
 
+def test_noise_phases_come_comma_separated_and_are_checked_against_the_expert(workdir, capsys, monkeypatch):
+    import kitbench.recording.recorder as recorder
+
+    expert = ["record", "--task", "AssemblingKits-v1", "--episodes", "2", "--no-mcap", "--out", "ds"]
+    assert _error(capsys, [*expert, "--action-noise", "0.5", "--noise-phases", "transport,seat"]) == (
+        "unknown noise phase 'seat' for the AssemblingKits-v1 expert; valid choices: approach, descend, grasp, "
+        "regrasp, lift, transport, align, insert, release, retreat, failed"
+    )
+    assert _tree(workdir) == []
+    seen = []
+    monkeypatch.setattr(recorder, "record", lambda config, progress=True: seen.append(config) or recorder.Summary())
+    assert cli.main([*expert, "--action-noise", "0.5", "--noise-phases", "transport,align"]) == 0
+    assert [c.noise_phases for c in seen] == [("transport", "align")]
+
+
 @pytest.mark.parametrize("summary,status", [({"gave_up": True}, 3), ({"interrupted": True, "signal": 15}, 143)])
 def test_record_passes_max_attempts_on_and_exits_with_the_summary_status(workdir, monkeypatch, summary, status):
     import kitbench.recording.recorder as recorder

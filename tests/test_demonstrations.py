@@ -64,6 +64,67 @@ def test_noise_is_deterministic_in_the_seed():
     assert not np.allclose(noise_a, noise_c)
 
 
+class _PhaseLog(ExpertPolicy):
+    """The expert, noting the phase each of its actions belongs to."""
+
+    def reset(self, env, seed, obs, info):
+        super().reset(env, seed, obs, info)
+        self.played: list[str] = []
+
+    def act(self, obs):
+        action = super().act(obs)
+        self.played.append(self.phase)
+        return action
+
+
+def test_noise_runs_only_in_the_named_phases_and_is_deterministic():
+    """Noise confined to the carry and the re-aim over the slot: every step played in those phases is perturbed,
+    no other step is (approach, grasp, insertion, release), and the same seed gives the same episode."""
+    phases = ("transport", "align")
+    runs = []
+    for _ in range(2):
+        policy = _PhaseLog()
+        env = gym.make("kitbench/AssemblingKits-v1", control_mode="pd_joint_pos")
+        record = run_episode(env, policy, seed=1, action_noise=1.0, noise_phases=phases, settle_steps=4)
+        runs.append((record, policy.played))
+    (record, played), (again, _) = runs
+    labels, executed = _stack(record, "action"), _stack(record, "executed_action")
+    perturbed = np.abs(executed - labels)[:, :-1].max(axis=1) > 0
+    in_phases = np.isin(played, phases)
+    assert {"approach", "grasp", "transport", "insert", "release"} <= set(played)
+    assert in_phases.sum() > 5 and record.first_success > np.flatnonzero(in_phases).max()
+    np.testing.assert_array_equal(perturbed, in_phases)
+    np.testing.assert_array_equal(_stack(again, "executed_action"), executed)
+    np.testing.assert_array_equal(
+        _stack(again, "observation.environment_state"), _stack(record, "observation.environment_state")
+    )
+
+
+@pytest.mark.parametrize(
+    "task,robot,seeds",
+    [
+        ("AssemblingKits-v1", None, (0, 1, 2)),
+        ("LiftPegUpright-v1", "panda", (0, 1)),
+        ("LiftPegUpright-v1", "fetch", (0,)),
+    ],
+)
+def test_every_phase_an_expert_plays_is_one_it_declares(task, robot, seeds):
+    """`--noise-phases` is checked against the planner's `phases`: a phase played but not declared could never
+    be named, so the declaration must cover every phase an episode meets (with noise, the retries too)."""
+    from kitbench.registration import make_env
+
+    env = make_env(task, control_mode="pd_joint_pos", robot_uids=robot)
+    declared = type(env.unwrapped).expert_class(robot).phases
+    played: set[str] = set()
+    for seed in seeds:
+        for noise in (0.0, 2.0):
+            policy = _PhaseLog()
+            run_episode(env, policy, seed=seed, action_noise=noise)
+            played |= set(policy.played)
+    assert played <= set(declared), sorted(played - set(declared))
+    assert {"approach", "grasp", "swing" if task.startswith("Lift") else "insert"} <= played
+
+
 def test_settling_runs_k_steps_past_the_first_success():
     # absolute joint targets: the expert succeeds by step ~30 of 50, leaving room to settle
     plain = run_episode(gym.make(LPU, control_mode="pd_joint_pos"), ExpertPolicy(), seed=2)
@@ -132,10 +193,54 @@ def test_record_stores_the_options_and_clean_labels(tmp_path):
         validate(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, action_noise=1.0, resume=True))
 
 
+def test_record_stores_the_noise_phases_from_a_recipe(tmp_path):
+    from kitbench.recording.config import load_recipe
+    from kitbench.recording.recorder import record
+
+    out = tmp_path / "phased"
+    recipe = tmp_path / "recipe.toml"
+    recipe.write_text(
+        f'[record]\ntask = "LiftPegUpright-v1"\nepisodes = 1\nout = "{out}"\ncontrol_mode = "pd_joint_pos"\n'
+        'action_noise = 1.0\nnoise_phases = ["swing"]\nmcap = false\n'
+    )
+    config = load_recipe(recipe)
+    assert config.noise_phases == ("swing",)
+    assert record(config, progress=False).stored == 1
+    assert json.loads((out / RECORDING_FILE).read_text())["noise_phases"] == ["swing"]
+    validate(load_recipe(recipe, resume=True, episodes=2))  # the same phases resume
+    with pytest.raises(ValueError, match=r"noise_phases: recorded \['swing'\], asked \['swing', 'place'\]"):
+        validate(load_recipe(recipe, resume=True, episodes=2, noise_phases=["swing", "place"]))
+
+
+PANDA_PHASES = "approach, descend, grasp, regrasp, swing, place, set_down, release, done, failed"
+FETCH_PHASES = "approach, insert, grasp, swing, place, done, failed"
+
+
 @pytest.mark.parametrize(
     "options,needle",
     [
         ({"action_noise": -0.5}, "action_noise must be a finite number >= 0 (0: no noise), got -0.5"),
+        (
+            {"action_noise": 0.5, "noise_phases": ("swing", "insert")},
+            f"unknown noise phase 'insert' for the LiftPegUpright-v1 expert; valid choices: {PANDA_PHASES}",
+        ),
+        (
+            {"action_noise": 0.5, "noise_phases": ("descend",), "robot": "fetch"},
+            f"unknown noise phase 'descend' for the LiftPegUpright-v1 expert; valid choices: {FETCH_PHASES}",
+        ),
+        (
+            {"noise_phases": ("swing",)},
+            "noise_phases needs action_noise > 0: it names the expert phases the noise runs in",
+        ),
+        (
+            {"action_noise": 0.5, "noise_phases": ("swing",), "policy": "random"},
+            "noise_phases names phases of the expert; policy 'random' has none",
+        ),
+        ({"action_noise": 0.5, "noise_phases": ()}, "noise_phases must be a non-empty list of phase names, got ()"),
+        (
+            {"action_noise": 0.5, "noise_phases": "swing"},
+            "noise_phases must be a non-empty list of phase names, got 'swing'",
+        ),
         ({"action_noise": float("nan")}, "action_noise must be a finite number >= 0 (0: no noise), got nan"),
         ({"settle_steps": -1}, "settle_steps must be an integer >= 0, got -1"),
         ({"settle_steps": 2.5}, "settle_steps must be an integer >= 0, got 2.5"),

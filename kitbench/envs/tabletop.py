@@ -210,19 +210,25 @@ class TabletopEnv(gym.Env, abc.ABC):
     def make_expert(self) -> Any:
         """The task's scripted expert for this env (planning `pd_joint_pos` targets: `reset(obs, info)`,
         `act(obs)`, `phase`, `tcp_target`), built from `expert`; None when the task has none."""
-        entry = type(self).expert
+        expert = type(self).expert_class(self.robot_uid)
+        return None if expert is None else expert(self)
+
+    @classmethod
+    def expert_class(cls, robot_uid: str | None = None) -> Any:
+        """The class of the task's expert for `robot_uid` (None: the task's default robot), imported from
+        `expert`; None when the task has none. Lets a recipe be checked against the expert before an env exists."""
+        entry = cls.expert
         if isinstance(entry, dict):  # one expert per robot
-            if self.robot_uid not in entry:
+            robot = robot_uid or cls.supported_robots[0]
+            if robot not in entry:
                 raise KitbenchError(
-                    f"task {self.task_id} has no expert for robot {self.robot_uid}; robots with one: {', '.join(entry)}"
+                    f"task {cls.task_id} has no expert for robot {robot}; robots with one: {', '.join(entry)}"
                 )
-            entry = entry[self.robot_uid]
-        if entry is None:
-            return None
+            entry = entry[robot]
         if isinstance(entry, str):
             module, _, name = entry.partition(":")
             entry = getattr(importlib.import_module(module), name)
-        return entry(self)
+        return entry
 
     @classmethod
     def episode_steps(cls, robot_uid: str | None = None) -> int:

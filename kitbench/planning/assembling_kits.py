@@ -140,6 +140,19 @@ class AssemblingKitsPlanner(PhasePlanner):
     """
 
     cfg: AssemblingKitsPlannerConfig
+    phases = (
+        "approach",
+        "descend",
+        "grasp",
+        "regrasp",
+        "lift",
+        "transport",
+        "align",
+        "insert",
+        "release",
+        "retreat",
+        "failed",
+    )
 
     @classmethod
     def default_config(cls) -> AssemblingKitsPlannerConfig:

@@ -80,6 +80,7 @@ class LiftPegUprightPlanner(PhasePlanner):
     """
 
     cfg: PlannerConfig
+    phases = ("approach", "descend", "grasp", "regrasp", "swing", "place", "set_down", "release", "done", "failed")
 
     @classmethod
     def default_config(cls) -> PlannerConfig:

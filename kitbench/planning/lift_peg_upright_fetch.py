@@ -83,6 +83,7 @@ class FetchLiftPegUprightPlanner(PhasePlanner):
     """
 
     cfg: PlannerConfig
+    phases = ("approach", "insert", "grasp", "swing", "place", "done", "failed")
 
     @classmethod
     def default_config(cls) -> PlannerConfig:

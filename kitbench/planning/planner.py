@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from typing import ClassVar
 
 import numpy as np
 
@@ -36,12 +37,17 @@ class PhasePlanner(ABC):
     delta modes the plans keep every joint step inside the +-0.1 rad action box (2 rad/s, below joints 5-7's
     2.61 rad/s): a clipped step would leave the joints out of step with one another.
 
-    `phase` names the phase being played and `tcp_target` is the 4x4 world TCP pose of the last action.
+    `phase` names the phase being played (one of the class's `phases`) and `tcp_target` is the 4x4 world TCP pose
+    of the last action.
     `grasp_attempts` and `failure` (None, or why the expert gave up) let benchmarks sort failures.
 
     `config` (default `default_config()`) is a frozen dataclass of the expert's tunables; the base class reads
     its `speed_factor`, the fraction of the robot's joint velocity and acceleration limits plans may use.
     """
+
+    # Every phase name the expert plays, in the order an episode meets them, "failed" last (`_fail`): what
+    # `kitbench record --noise-phases` may name, so a recipe's phases are checked before anything runs.
+    phases: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, env, config=None):
         self.env = env.unwrapped

@@ -44,6 +44,11 @@ class RecordConfig:
     # the control mode (recording/noise.py; labels stay clean), and episodes run this many steps past success.
     action_noise: float = 0.0
     settle_steps: int = 0
+    # The expert's phases (`PhasePlanner.phases`) the noise runs in; None: all of them, until the first success.
+    # AssemblingKits' pockets leave 0.69-2 mm a side: at 0.5 noise through every phase the expert kept 24% of
+    # its seeds, confined to the phases before the insertion 95% (800 of 840), each demo then re-aiming over the
+    # slot from a median 5.7 mm off (docs/learnability.md).
+    noise_phases: tuple[str, ...] | None = None
     # What `next.reward` holds (kitbench.envs.modes.REWARD_MODES); stored with the recording's settings.
     reward_mode: str = "dense"
     # The robot (`robot_uids`); None: the task's default (LiftPegUpright: panda). Stored with the settings.
@@ -61,6 +66,8 @@ class RecordConfig:
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
         # --resume comparison do not depend on the spelling
         object.__setattr__(self, "task", canonical_task(self.task))
+        if isinstance(self.noise_phases, list):  # as a recipe (TOML) writes it; checked by `validate`
+            object.__setattr__(self, "noise_phases", tuple(self.noise_phases))
 
     @property
     def executor_config(self) -> ExecutorConfig:
@@ -83,6 +90,8 @@ class RecordConfig:
             "policy",
             "only_success",
             "action_noise",
+            # None when recorded before phases could be chosen: noise through every phase, as now
+            "noise_phases",
             "settle_steps",
             "reward_mode",
             # None: the task's default robot; a recording made before robots could be chosen has no `robot`
@@ -90,6 +99,8 @@ class RecordConfig:
             "robot",
         )
         identity = {k: getattr(self, k) for k in settings}
+        if self.noise_phases is not None:  # a list, as the JSON it is saved in reads back
+            identity["noise_phases"] = list(self.noise_phases)
         return {**identity, "kitbench_version": kitbench.__version__}
 
 
@@ -123,6 +134,7 @@ def validate(config: RecordConfig) -> None:
         raise KitbenchError(f"unknown reward_mode {config.reward_mode!r}; valid choices: {', '.join(REWARD_MODES)}")
     check_seed(config.seed)
     check_noise_scale(config.action_noise)
+    _check_noise_phases(config)
     if (
         not (isinstance(config.settle_steps, int) and not isinstance(config.settle_steps, bool))
         or config.settle_steps < 0
@@ -168,6 +180,27 @@ def validate(config: RecordConfig) -> None:
         del policy
     finally:
         env.close()
+
+
+def _check_noise_phases(config: RecordConfig) -> None:
+    """`noise_phases` names phases of the task's expert, for a recording with noise, run by that expert."""
+    phases = config.noise_phases
+    if phases is None:
+        return
+    if not (isinstance(phases, tuple) and phases and all(isinstance(p, str) for p in phases)):
+        raise KitbenchError(f"noise_phases must be a non-empty list of phase names, got {phases!r}")
+    if not config.action_noise:
+        raise KitbenchError("noise_phases needs action_noise > 0: it names the expert phases the noise runs in")
+    if config.policy != "expert":
+        raise KitbenchError(f"noise_phases names phases of the expert; policy {config.policy!r} has none")
+    expert = task_entry(config.task).env_class.expert_class(config.robot)
+    valid = expert.phases if expert is not None else ()
+    for phase in phases:
+        if phase not in valid:
+            raise KitbenchError(
+                f"unknown noise phase {phase!r} for the {config.task} expert; valid choices: "
+                f"{', '.join(valid) or '(none)'}"
+            )
 
 
 def _is_count(value) -> bool:

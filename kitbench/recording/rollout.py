@@ -6,6 +6,7 @@ The whole episode stays in memory until it ends, so an interrupted run never lea
 Two options make demonstrations for learning (`kitbench record --action-noise / --settle-steps`):
 - `action_noise`: until the first success, the robot executes the policy's action plus seeded noise
   (`noise.ActionNoise`); the frame's `action` stays the policy's own, `executed_action` is what the robot got.
+  `noise_phases` confines the noise to the steps the policy plays in those phases (its `phase` after `act`).
 - `settle_steps`: the episode goes on this many steps after its first success (the task ends an episode at
   success), so the data shows the policy holding or releasing a finished task instead of stopping mid-motion.
 """
@@ -99,6 +100,7 @@ def run_episode(
     mcap: Path | BinaryIO | None = None,
     action_noise: float = 0.0,
     settle_steps: int = 0,
+    noise_phases: tuple[str, ...] | None = None,
 ) -> EpisodeRecord:
     """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given."""
     u = env.unwrapped
@@ -125,7 +127,10 @@ def run_episode(
             action = np.clip(np.asarray(policy.act(obs), dtype=np.float32), u.action_space.low, u.action_space.high)
             # no noise once the task is done: settling shows the finished state held, which LiftPegUpright's
             # 2 mm height tolerance does not survive at 0.01 rad of joint noise (1 of 20 episodes stayed a success)
-            executed = action if noise is None or record.first_success is not None else noise.perturb(action)
+            noisy = noise is not None and record.first_success is None
+            if noisy and noise_phases is not None:
+                noisy = getattr(policy, "phase", None) in noise_phases
+            executed = noise.perturb(action) if noisy and noise is not None else action
             if log is not None:
                 phase = getattr(policy, "phase", None) or "policy"
                 log.log_action(step * dt_ns, executed, phase, getattr(policy, "tcp_target", None))

@@ -39,6 +39,7 @@ class RecordWork(Work):
             job,
             log,
             action_noise=self.config.action_noise,
+            noise_phases=self.config.noise_phases,
             settle_steps=self.config.settle_steps,
         )
         return episode, None if log is None else log.getvalue()
