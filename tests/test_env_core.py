@@ -140,6 +140,31 @@ def test_target_delta_accumulates_where_delta_restarts_from_the_joints(mode):
         assert target < start[0] + 0.2 - 0.01
 
 
+@pytest.mark.parametrize(
+    "mode",
+    ["pd_joint_pos", "pd_joint_delta_pos", "pd_joint_target_delta_pos", "pd_ee_delta_pose", "pd_ee_target_delta_pose"],
+)
+def test_preview_gives_the_targets_a_step_sets_and_leaves_the_controller_alone(mode):
+    """`Controller.preview` (comparing a policy's action with a label, bench/open_loop.py) answers what the step
+    will set, in every mode, accumulating ones included, and changes nothing the next step reads."""
+    env = make(control_mode=mode)
+    env.reset(seed=0)
+    u = env.unwrapped
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        action = rng.uniform(u.action_space.low, u.action_space.high).astype(np.float32)
+        if mode == "pd_joint_pos":
+            action[:7] = u.robot.qpos()[:7] + rng.uniform(-0.05, 0.05, 7)
+        before = u.controller.joint_target.copy(), u.controller.tcp_target
+        decoy = u.controller.preview(rng.uniform(u.action_space.low, u.action_space.high)[:-1], u.robot.arm_qpos())
+        previewed = u.controller.preview(action[:-1], u.robot.arm_qpos())
+        np.testing.assert_array_equal(u.controller.joint_target, before[0])
+        assert u.controller.tcp_target is before[1]
+        assert not np.allclose(decoy, previewed)
+        env.step(action)
+        np.testing.assert_allclose(u.controller.joint_target, previewed, atol=1e-9)
+
+
 @pytest.mark.parametrize("mode", ["pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose"])
 def test_zero_delta_holds_the_arm_still(mode):
     env = make(control_mode=mode)

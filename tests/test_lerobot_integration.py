@@ -4,6 +4,7 @@ with kitbench and with lerobot-eval on the kitbench env plugin."""
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -127,6 +128,27 @@ def test_mismatched_policy_lists_expected_and_provided(checkpoint):
     assert "mismatched: action" in message and "action[8]" in message and "action[4] (pd_ee_delta_pos)" in message
     with pytest.raises(ValueError, match=r"observation.environment_state\[7\].*observation.environment_state\[53\]"):
         run_episode(gym.make("kitbench/AssemblingKits-v1"), policy, seed=0)
+
+
+def test_open_loop_bench_compares_the_checkpoint_with_the_expert_on_the_experts_states(checkpoint):
+    """bench/open_loop.py: every step of the expert's episode is one comparison, filed under the phase the expert
+    played, and the expert's episode is the one it plays without the probe (same length)."""
+    from bench.open_loop import measure, summarize
+    from kitbench.planning.lift_peg_upright import LiftPegUprightPlanner
+    from kitbench.policies.expert import ExpertPolicy
+    from kitbench.recording.rollout import run_episode
+
+    measured = measure(str(checkpoint), "LiftPegUpright-v1", range(3, 4))
+    plain = run_episode(gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_joint_pos"), ExpertPolicy(), seed=3)
+    rows = summarize(measured)
+    assert sum(r["frames"] for r in rows) == plain.length
+    phases = [r["phase"] for r in rows]
+    assert {"approach", "grasp", "swing"} <= set(phases)
+    declared = LiftPegUprightPlanner.phases
+    assert phases == sorted(phases, key=declared.index)
+    for r in rows:  # a 4-step checkpoint is far off, but every figure is a distance
+        assert all(math.isfinite(x) and x >= 0 for x in (*r["horizontal_mm"], *r["vertical_mm"], r["rotation_deg"]))
+    assert max(r["horizontal_mm"][1] for r in rows) > 1.0
 
 
 def _lerobot_eval(checkpoint, cwd, out, batch_size, use_async, *extra) -> dict:

@@ -108,6 +108,15 @@ class Controller:
     def arm_targets(self, arm_action: np.ndarray, arm_qpos: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def preview(self, arm_action: np.ndarray, arm_qpos: np.ndarray) -> np.ndarray:
+        """The (7,) joint targets `arm_action` would set from `arm_qpos`, leaving the controller as it was: to
+        compare two actions (a policy's and a label) where they lead, whatever the mode."""
+        saved = self._joint_target, self.tcp_target
+        try:
+            return self.arm_targets(np.asarray(arm_action, dtype=np.float64), arm_qpos).copy()
+        finally:
+            self._joint_target, self.tcp_target = saved
+
     def _clip_to_limits(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.arm_limits[:, 0], self.arm_limits[:, 1])
 

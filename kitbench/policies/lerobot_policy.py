@@ -142,3 +142,14 @@ class LeRobotPolicy:
         with self._torch.inference_mode():
             action = self.post(self.policy.select_action(self.pre(self._batch(obs))))
         return action.reshape(-1).cpu().numpy().astype(np.float32)
+
+    def action_chunk(self, obs) -> np.ndarray:
+        """The (chunk, action) actions the policy predicts from `obs` alone, un-normalised, without touching what
+        `act` has queued or ensembled: what comparing a policy with a label, step by step, needs. ACT only: a
+        policy that predicts from a history of observations (Diffusion) has no chunk for one observation."""
+        if self.config.type != "act":
+            raise KitbenchError(f"action_chunk needs an ACT policy (one observation a chunk), got {self.config.type}")
+        with self._torch.inference_mode():
+            chunk = self.policy.predict_action_chunk(self.pre(self._batch(obs)))
+            steps = [self.post(chunk[:, t]).reshape(-1).cpu().numpy() for t in range(chunk.shape[1])]
+        return np.stack(steps).astype(np.float32)

@@ -1,0 +1,160 @@
+"""Open-loop precision of a trained policy: on the states the expert visits, where does the policy's next action
+lead, against the expert's own, phase by phase?
+
+    python bench/open_loop.py CHECKPOINT --task AssemblingKits-v1 [--seeds 0:20] [--out report.json]
+
+For each seed the task's expert runs the episode (in the control mode the checkpoint was trained in, with the
+robot it was trained on). At every step the checkpoint predicts its action chunk from the same observation, and
+the first action of that chunk is compared with the expert's: both are turned into the joint targets they would
+set from the measured state (`Controller.preview`, so every mode compares alike) and those into TCP poses. Per
+expert phase it prints the frames, the TCP's horizontal and vertical distance between the two (median and p90,
+mm), the angle between their orientations (median, degrees), the difference of their gripper commands (median,
+of the -1..1 range), and how far the expert's own TCP target moves per step there, for scale.
+
+Only the policy's error on states from the demonstrations' distribution is measured: no error compounds, so an
+error seen here is the fit's own. Seeds 0.. are the recipes' training seeds, the suites start at 1,000,000.
+ACT checkpoints only (`LeRobotPolicy.action_chunk`). Exit status: 2 for a bad argument.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from kitbench.errors import KitbenchError
+
+
+def parse_seeds(text: str) -> range:
+    """`A:B` (A included, B not) or a count `N` (0..N-1)."""
+    start, sep, stop = text.partition(":")
+    try:
+        seeds = range(int(start), int(stop)) if sep else range(int(text))
+    except ValueError:
+        seeds = range(0)
+    if not seeds or seeds.start < 0:
+        raise KitbenchError(f"--seeds {text!r} must be a count N or a range A:B of seeds >= 0 with A < B")
+    return seeds
+
+
+def _rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Degrees between two 3x3 rotations."""
+    cos = (np.trace(a.T @ b) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
+def measure(checkpoint: str, task: str, seeds: range) -> dict:
+    """Per phase (in the order the expert's `phases` declares them): lists of the horizontal, vertical (m) and
+    angular (deg) distances between where the policy's action and the expert's lead, the differences of their
+    gripper commands and the expert's step lengths (m)."""
+    from kitbench.policies.expert import ExpertPolicy
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+    from kitbench.registration import make_env
+
+    policy = LeRobotPolicy(checkpoint)
+    needs = policy.requirements()
+    env = make_env(
+        task,
+        obs_mode=needs.get("obs_mode", "state"),
+        control_mode=needs.get("control_mode", "pd_joint_pos"),
+        robot_uids=needs.get("robot"),
+    )
+    u = env.unwrapped
+    n_arm = u.action_space.shape[0] - 1
+    phases: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    try:
+        for seed in seeds:
+            obs, info = env.reset(seed=seed)
+            expert = ExpertPolicy()
+            expert.reset(env, seed, obs, info)
+            policy.reset(env, seed, obs, info)
+            previous = None
+            while True:
+                label = expert.act(obs)
+                predicted = policy.action_chunk(obs)[0]
+                qpos = u.robot.arm_qpos()
+                kinematics = u.controller.kinematics
+                want = kinematics.tcp_pose(u.controller.preview(label[:n_arm], qpos))
+                got = kinematics.tcp_pose(u.controller.preview(predicted[:n_arm], qpos))
+                row = phases[expert.phase or "policy"]
+                row["horizontal"].append(float(np.linalg.norm(want[:2, 3] - got[:2, 3])))
+                row["vertical"].append(float(abs(want[2, 3] - got[2, 3])))
+                row["rotation"].append(_rotation_angle(want[:3, :3], got[:3, :3]))
+                row["gripper"].append(float(abs(label[-1] - predicted[-1])))
+                if previous is not None:
+                    row["expert_step"].append(float(np.linalg.norm(want[:3, 3] - previous[:3, 3])))
+                previous = want
+                obs, _, terminated, truncated, _ = env.step(label)
+                if terminated or truncated:
+                    break
+        order = type(expert.planner).phases
+    finally:
+        env.close()
+    ordered = {p: phases[p] for p in sorted(phases, key=lambda p: order.index(p) if p in order else len(order))}
+    return {"checkpoint": checkpoint, "task": task, "seeds": [seeds.start, seeds.stop], "phases": ordered}
+
+
+def summarize(measured: dict) -> list[dict]:
+    """One row per phase."""
+    rows = []
+    for phase, values in measured["phases"].items():
+        horizontal, vertical = np.array(values["horizontal"]) * 1000, np.array(values["vertical"]) * 1000
+        step = np.array(values["expert_step"]) * 1000 if values["expert_step"] else np.array([math.nan])
+        rows.append(
+            {
+                "phase": phase,
+                "frames": len(horizontal),
+                "horizontal_mm": [float(np.median(horizontal)), float(np.percentile(horizontal, 90))],
+                "vertical_mm": [float(np.median(vertical)), float(np.percentile(vertical, 90))],
+                "rotation_deg": float(np.median(values["rotation"])),
+                "gripper_diff": float(np.median(values["gripper"])),
+                "expert_step_mm": float(np.median(step)),
+            }
+        )
+    return rows
+
+
+def print_table(rows: list[dict]) -> None:
+    head = f"{'phase':<10} {'frames':>6}  {'horizontal mm':>15}  {'vertical mm':>13}  {'rot deg':>7}  "
+    print(head + f"{'gripper':>7}  {'expert step mm':>14}")
+    for r in rows:
+        h, v = r["horizontal_mm"], r["vertical_mm"]
+        print(
+            f"{r['phase']:<10} {r['frames']:>6}  {h[0]:6.2f} / {h[1]:6.2f}  {v[0]:5.2f} / {v[1]:5.2f}  "
+            f"{r['rotation_deg']:7.2f}  {r['gripper_diff']:7.3f}  {r['expert_step_mm']:14.2f}"
+        )
+    print("(median / p90; gripper: the median difference of the two commands, -1 open .. 1 closed)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", help="a lerobot-train output folder or its pretrained_model")
+    parser.add_argument("--task", required=True, help="the task the checkpoint was trained on")
+    parser.add_argument("--seeds", default="20", help="N (seeds 0..N-1) or A:B (default 20)")
+    parser.add_argument("--out", help="also write the rows, and the settings, to this JSON file")
+    args = parser.parse_args(argv)
+    try:
+        from kitbench.registration import task_entry
+
+        task_entry(args.task)
+        seeds = parse_seeds(args.seeds)
+        measured = measure(args.checkpoint, args.task, seeds)
+    except KitbenchError as exc:
+        print(f"open_loop: error: {exc}", file=sys.stderr)
+        return 2
+    rows = summarize(measured)
+    print(f"{args.checkpoint} on {args.task}, seeds {seeds.start}..{seeds.stop - 1}, expert's states:")
+    print_table(rows)
+    if args.out:
+        report = {"checkpoint": args.checkpoint, "task": args.task, "seeds": [seeds.start, seeds.stop], "rows": rows}
+        Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
