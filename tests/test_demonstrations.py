@@ -212,6 +212,18 @@ def test_record_stores_the_noise_phases_from_a_recipe(tmp_path):
         validate(load_recipe(recipe, resume=True, episodes=2, noise_phases=["swing", "place"]))
 
 
+def test_noise_phases_for_an_expert_that_declares_none_say_so(tmp_path, monkeypatch):
+    from kitbench.planning.assembling_kits import AssemblingKitsPlanner
+
+    monkeypatch.setattr(AssemblingKitsPlanner, "phases", ())
+    config = RecordConfig(
+        task="AssemblingKits-v1", episodes=1, out=tmp_path / "never", action_noise=0.5, noise_phases=("insert",)
+    )
+    with pytest.raises(ValueError, match=r"^noise_phases: the AssemblingKits-v1 expert declares no phases"):
+        validate(config)
+    assert not (tmp_path / "never").exists()
+
+
 PANDA_PHASES = "approach, descend, grasp, regrasp, swing, place, set_down, release, done, failed"
 FETCH_PHASES = "approach, insert, grasp, swing, place, done, failed"
 

@@ -194,12 +194,13 @@ def _check_noise_phases(config: RecordConfig) -> None:
     if config.policy != "expert":
         raise KitbenchError(f"noise_phases names phases of the expert; policy {config.policy!r} has none")
     expert = task_entry(config.task).env_class.expert_class(config.robot)
-    valid = expert.phases if expert is not None else ()
+    valid = getattr(expert, "phases", ())
+    if not valid:
+        raise KitbenchError(f"noise_phases: the {config.task} expert declares no phases (`PhasePlanner.phases`)")
     for phase in phases:
         if phase not in valid:
             raise KitbenchError(
-                f"unknown noise phase {phase!r} for the {config.task} expert; valid choices: "
-                f"{', '.join(valid) or '(none)'}"
+                f"unknown noise phase {phase!r} for the {config.task} expert; valid choices: {', '.join(valid)}"
             )
 
 
