@@ -49,7 +49,13 @@ LENGTH_SEEDS = 10  # episodes per recipe whose lengths the chunk check reads
 
 @cache
 def _shortest_demo(
-    task: str, control_mode: str, settle_steps: int, action_noise: float, first_seed: int, robot: str | None = None
+    task: str,
+    control_mode: str,
+    settle_steps: int,
+    action_noise: float,
+    noise_phases: tuple[str, ...] | None,
+    first_seed: int,
+    robot: str | None = None,
 ) -> int:
     """The shortest successful episode among a recipe's first seeds, recorded as state: cameras do not change
     the physics, so an image recipe's episodes are as long."""
@@ -60,7 +66,9 @@ def _shortest_demo(
     env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
     lengths = []
     for seed in range(first_seed, first_seed + LENGTH_SEEDS):
-        episode = run_episode(env, ExpertPolicy(), seed, settle_steps=settle_steps, action_noise=action_noise)
+        episode = run_episode(
+            env, ExpertPolicy(), seed, settle_steps=settle_steps, action_noise=action_noise, noise_phases=noise_phases
+        )
         if episode.success:
             lengths.append(episode.length)
     env.close()
@@ -85,7 +93,13 @@ def test_config_fits_the_data_its_recipe_writes(path):
     cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=[])
     recipe = RECIPES[cfg.dataset.root]
     shortest = _shortest_demo(
-        recipe.task, recipe.control_mode, recipe.settle_steps, recipe.action_noise, recipe.seed, recipe.robot
+        recipe.task,
+        recipe.control_mode,
+        recipe.settle_steps,
+        recipe.action_noise,
+        recipe.noise_phases,
+        recipe.seed,
+        recipe.robot,
     )
     policy = cfg.policy
     span = policy.chunk_size if policy.type == "act" else policy.horizon
