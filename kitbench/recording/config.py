@@ -90,7 +90,7 @@ class RecordConfig:
             "policy",
             "only_success",
             "action_noise",
-            # None when recorded before phases could be chosen: noise through every phase, as now
+            # None (noise through every phase) also reads back from recordings made before the option existed
             "noise_phases",
             "settle_steps",
             "reward_mode",
