@@ -3,6 +3,7 @@
     python bench/learnability.py --task LiftPegUpright-v1 --obs state --demos 50,100,200 --policy act [--steps N]
         [--out outputs/learnability] [--control-mode M] [--action-noise X] [--noise-phases P,Q] [--settle-steps K]
         [--suite-episodes E] [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
+        [--policy-option KEY=V1[,V2...] ...]
 
 For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
 trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above;
@@ -10,7 +11,9 @@ torch gets the cores the config's loader workers leave, at least one: OMP_NUM_TH
 scores the final checkpoint on the task's standard suite (`kitbench eval`) and prints one row per run: parameters,
 training minutes (wall clock: imports, dataset loading and model set-up count), steps/s of the training loop (dated
 by lerobot's log; the config's in-training env evaluations count), success k/n with its Wilson 95% interval, the
-task's success criteria and failure categories.
+task's success criteria and failure categories. `--policy-option KEY=V1,V2` (repeatable) sweeps the checkpoint's
+inference settings (`kitbench eval --policy-option`): the checkpoint is trained once and scored once per
+combination of the values, one row each, its tag carrying the options.
 
 Each row is appended to <out>/results.jsonl with the exact commands, the machine and the versions, and
 <out>/<task>_<obs>_success_vs_demos.png plots success against demos for every (policy, tag) found there, latest row
@@ -106,6 +109,35 @@ class Plan:
     settle_steps: int | None
     suite_episodes: int | None
     tag: str | None
+    # each combination of the --policy-option values, one evaluation of the trained checkpoint each
+    option_sets: tuple[tuple[tuple[str, object], ...], ...] = ((),)
+
+
+def parse_sweep(texts: list[str], policy_type: str) -> tuple[tuple[tuple[str, object], ...], ...]:
+    """`KEY=V1,V2` flags as every combination of their values, each key checked against the policy config's
+    fields (a key the policy lacks would only fail after training)."""
+    import itertools
+
+    import lerobot.policies  # noqa: F401  (registers the policy types' configs)
+    from lerobot.configs import PreTrainedConfig
+
+    from kitbench.policies.lerobot_policy import parse_option
+
+    fields = {f.name for f in dataclasses.fields(PreTrainedConfig.get_choice_class(policy_type))}
+    axes = []
+    for text in texts:
+        key, _, values = text.partition("=")
+        if key not in fields:
+            raise UsageError(f"--policy-option {text!r}: the {policy_type} policy has no setting {key!r}")
+        try:
+            axes.append([parse_option(f"{key}={value}") for value in values.split(",")])
+        except KitbenchError as exc:
+            raise UsageError(f"--policy-option {text!r}: {exc}") from None
+    return tuple(itertools.product(*axes)) if axes else ((),)
+
+
+def options_tag(options: tuple[tuple[str, object], ...]) -> str:
+    return "+".join(f"{k}={json.dumps(v)}" for k, v in options)
 
 
 def task_snake(task: str) -> str:
@@ -249,6 +281,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         settle_steps=args.settle_steps,
         suite_episodes=args.suite_episodes,
         tag=args.tag,
+        option_sets=parse_sweep(args.policy_option or [], config_data["policy"]["type"]),
     )
 
 
@@ -398,8 +431,10 @@ def train(plan: Plan, data: Path, policy_dir: Path) -> dict:
     }
 
 
-def evaluate(plan: Plan, train_dir: Path, policy_dir: Path) -> tuple[list[str], dict]:
-    eval_dir = policy_dir / "eval"
+def evaluate(
+    plan: Plan, train_dir: Path, policy_dir: Path, options: tuple[tuple[str, object], ...] = ()
+) -> tuple[list[str], dict]:
+    eval_dir = policy_dir / ("eval" if not options else f"eval_{options_tag(options)}")
     command = [
         str(BIN / "kitbench"),
         "eval",
@@ -420,8 +455,14 @@ def evaluate(plan: Plan, train_dir: Path, policy_dir: Path) -> tuple[list[str], 
     ]
     if plan.suite_episodes is not None:
         command += ["--episodes", str(plan.suite_episodes)]
-    run_logged(command, policy_dir / "eval.log")
+    for key, value in options:
+        command += ["--policy-option", f"{key}={json.dumps(value)}"]
+    run_logged(command, eval_dir.with_name(eval_dir.name + ".log"))
     return command, json.loads((eval_dir / REPORT_JSON).read_text())
+
+
+def report_path(policy_dir: Path, options: tuple[tuple[str, object], ...]) -> str:
+    return str(policy_dir / ("eval" if not options else f"eval_{options_tag(options)}") / REPORT_JSON)
 
 
 def machine() -> dict:
@@ -441,7 +482,8 @@ def run_name(plan: Plan, demos: int) -> str:
     return f"{plan.snake}_{plan.obs}_d{demos}" + (f"_{plan.tag}" if plan.tag else "")
 
 
-def one_run(plan: Plan, demos: int) -> dict:
+def one_run(plan: Plan, demos: int) -> list[dict]:
+    """Record (or reuse), train once, and score the checkpoint once per option set: one row each."""
     started = now()
     name = run_name(plan, demos)
     run_dir = plan.out / name
@@ -454,8 +496,22 @@ def one_run(plan: Plan, demos: int) -> dict:
     print(f"[{name}] training {plan.policy} ({plan.config}); log {policy_dir / 'train.log'}", flush=True)
     trained = train(plan, data, policy_dir)
     print(f"[{name}]   {trained['steps']} steps in {trained['seconds'] / 60:.1f} min", flush=True)
-    print(f"[{name}] evaluating on {plan.suite}; log {policy_dir / 'eval.log'}", flush=True)
-    eval_cmd, report = evaluate(plan, trained["dir"], policy_dir)
+    shared = {"demos": demos, "started": started, "name": name, "data": data, "record": record, "reused": reused}
+    rows = []
+    for options in plan.option_sets:
+        what = f" with {options_tag(options)}" if options else ""
+        print(f"[{name}] evaluating on {plan.suite}{what}", flush=True)
+        eval_cmd, report = evaluate(plan, trained["dir"], policy_dir, options)
+        rows.append(_row(plan, shared, trained, eval_cmd, report, options))
+    return rows
+
+
+def _row(plan: Plan, shared: dict, trained: dict, eval_cmd: list[str], report: dict, options) -> dict:
+    """One results row: the run's recording and training (`shared`, `trained`) and one evaluation of it."""
+    demos, started, name, data = shared["demos"], shared["started"], shared["name"], shared["data"]
+    record, reused = shared["record"], shared["reused"]
+    policy_dir = plan.out / name / plan.policy
+    tag = "+".join(t for t in (plan.tag, options_tag(options)) if t) or None
     k, n = report["success"]["count"], report["episodes"]
     lo, hi = wilson_interval(k, n)
     recorded = read_recording_settings(data) or {}  # what the recipe and the flags came to
@@ -463,8 +519,9 @@ def one_run(plan: Plan, demos: int) -> dict:
         "task": plan.task,
         "obs": plan.obs,
         "policy": plan.policy,
-        "tag": plan.tag,
-        "run": name,
+        "tag": tag,
+        "run": name + (f" [{options_tag(options)}]" if options else ""),
+        "policy_options": dict(options),
         "demos": demos,
         "params": trained["params"],
         "params_source": trained["params_source"],
@@ -494,7 +551,11 @@ def one_run(plan: Plan, demos: int) -> dict:
             "train": shell_line(trained["command"], trained["env"]),
             "eval": shlex.join(eval_cmd),
         },
-        "paths": {"data": str(data), "train": str(trained["dir"]), "report": str(policy_dir / "eval" / REPORT_JSON)},
+        "paths": {
+            "data": str(data),
+            "train": str(trained["dir"]),
+            "report": report_path(policy_dir, options),
+        },
         "machine": machine(),
         "kitbench_version": kitbench.__version__,
         "lerobot_version": version("lerobot"),
@@ -608,6 +669,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tag", help="names a variant: run folders, results rows and plot lines carry it")
     parser.add_argument("--config", help="lerobot-train config (default policies/<policy>_<task>_<obs>.json)")
     parser.add_argument("--recipe", help="kitbench record recipe (default datasets/<task>_<obs>.toml)")
+    parser.add_argument(
+        "--policy-option",
+        dest="policy_option",
+        action="append",
+        metavar="KEY=V1[,V2...]",
+        help="score the checkpoint once per value (per combination, repeated): kitbench eval --policy-option",
+    )
     return parser
 
 
@@ -623,11 +691,11 @@ def main() -> int:
     png = None
     try:
         for demos in plan.demos:
-            row = one_run(plan, demos)
-            rows.append(row)
-            png = publish(plan, row)
-            s = row["success"]
-            print(f"[{row['run']}] success {s['count']}/{s['episodes']} ({s['rate']:.0%})", flush=True)
+            for row in one_run(plan, demos):
+                rows.append(row)
+                png = publish(plan, row)
+                s = row["success"]
+                print(f"[{row['run']}] success {s['count']}/{s['episodes']} ({s['rate']:.0%})", flush=True)
     except CommandFailed as exc:
         if rows:
             print(table(rows))

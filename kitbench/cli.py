@@ -47,6 +47,7 @@ def _record(args) -> int:
         "out": args.out,
         "seed": args.seed,
         "obs_mode": args.obs_mode,
+        "pointcloud_points": args.pointcloud_points,
         "control_mode": args.control_mode,
         "policy": args.policy,
         "only_success": args.only_success or None,
@@ -117,6 +118,7 @@ def eval_config_from_args(args):
     """The evaluation the flags describe: a suite file cut to --episodes, or --episodes seeds from --seed."""
     from kitbench.evaluation.runner import EvalConfig
     from kitbench.evaluation.suite import DEFAULT_FIRST_SEED, adhoc_suite, load_suite
+    from kitbench.policies.lerobot_policy import parse_option
 
     modes = {
         "obs_mode": args.obs_mode,
@@ -156,6 +158,9 @@ def eval_config_from_args(args):
         videos=args.videos,
         explicit=explicit,
         overwrite=args.overwrite,
+        batch_size=args.batch_size,
+        device=args.device,
+        policy_options=tuple(parse_option(o) for o in args.policy_option or ()),
     )
 
 
@@ -239,7 +244,18 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--episodes", type=int, help="episodes to store")
     rec.add_argument("--out", help="dataset folder (the LeRobot root; MCAP logs go to <out>/mcap)")
     rec.add_argument("--seed", type=int, help="first seed, >= 0 (default 0); episode k uses seed + k")
-    rec.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd")
+    rec.add_argument(
+        "--obs-mode",
+        dest="obs_mode",
+        help="state (default); rgb, rgbd, depth, segmentation or '+'-joined textures (rgb+depth+segmentation); "
+        "pointcloud",
+    )
+    rec.add_argument(
+        "--pointcloud-points",
+        dest="pointcloud_points",
+        type=int,
+        help="points stored per frame with --obs-mode pointcloud (default 1024), sampled with the episode's seed",
+    )
     rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
     rec.add_argument(
         "--robot", help="one of the task's robots (default: its first, e.g. panda; or fetch); stored with the recording"
@@ -337,10 +353,35 @@ def build_parser() -> argparse.ArgumentParser:
         help="simulator workers (processes or Ray actors; default 1); results do not depend on it",
     )
     _executor_flags(ev)
+    ev.add_argument(
+        "--batch-size",
+        dest="batch_size",
+        type=int,
+        default=1,
+        help="episodes each worker runs in lockstep, one policy call a step for all of them (default 1)",
+    )
+    ev.add_argument(
+        "--policy-option",
+        dest="policy_option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="set a lerobot checkpoint's config field for this run (repeatable), e.g. temporal_ensemble_coeff=0.01, "
+        "n_action_steps=5, num_inference_steps=10; the report lists them",
+    )
+    ev.add_argument(
+        "--device",
+        default="auto",
+        help="where a lerobot policy's network runs: auto (default: CUDA when torch sees it), cpu or cuda",
+    )
     ev.add_argument("--videos", type=int, default=0, help="episodes to film, failures and successes both (default 0)")
     ev.add_argument("--out", help="report folder (default outputs/eval/<task>/<policy>)")
     ev.add_argument("--overwrite", action="store_true", help="replace an existing report in --out")
-    ev.add_argument("--obs-mode", dest="obs_mode", help="state (default), rgb or rgbd; image policies imply rgb")
+    ev.add_argument(
+        "--obs-mode",
+        dest="obs_mode",
+        help="state (default), any camera mode (rgb, rgbd, depth, segmentation, '+'-joined) or pointcloud; a trained "
+        "policy implies the mode its dataset was recorded in",
+    )
     ev.add_argument(
         "--control-mode",
         dest="control_mode",

@@ -213,7 +213,7 @@ def test_recording_images_without_a_vulkan_device_says_so_and_writes_nothing(tmp
     )
     line = doctor.stdout.strip().splitlines()[-1]
     assert line != "None" and "no usable Vulkan device" in line
-    for obs_mode in ("rgb", "rgbd"):
+    for obs_mode in ("rgb", "rgbd", "segmentation", "pointcloud"):
         out = tmp_path / "ds"
         result = subprocess.run(
             [sys.executable, "-m", "kitbench.cli", *RECORD, "--obs-mode", obs_mode, "--out", str(out)],

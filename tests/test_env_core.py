@@ -221,8 +221,11 @@ def test_wrong_action_shape_raises():
     "kwargs,needle",
     [
         (
-            {"obs_mode": "pointcloud"},
-            "unknown obs_mode 'pointcloud'; valid choices: none, state, state_dict, rgb, rgbd",
+            {"obs_mode": "point_cloud"},
+            (
+                "unknown obs_mode 'point_cloud'; valid choices: none, state, state_dict, rgb, rgbd, depth, "
+                "segmentation, rgb+depth, rgb+segmentation, depth+segmentation, rgb+depth+segmentation, pointcloud"
+            ),
         ),
         ({"control_mode": "pd_joint_vel"}, "unknown control_mode 'pd_joint_vel'; valid choices: pd_joint_delta_pos"),
         (

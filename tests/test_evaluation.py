@@ -330,8 +330,8 @@ def test_cli_runs_a_suite_and_prints_the_summary(tmp_path):
 
 
 def test_suite_settings_are_validated_like_files():
-    with pytest.raises(ValueError, match="unknown obs_mode 'depth'"):
-        Suite(name="x", task="LiftPegUpright-v1", seeds=(1,), obs_mode="depth")
+    with pytest.raises(ValueError, match="unknown obs_mode 'thermal'; valid choices: state, rgb, rgbd, depth"):
+        Suite(name="x", task="LiftPegUpright-v1", seeds=(1,), obs_mode="thermal")
 
 
 def test_histograms_count_in_whole_episodes_keep_the_legend_off_the_bars_and_say_when_empty():

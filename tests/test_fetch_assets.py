@@ -345,3 +345,19 @@ def test_doctor_reports_a_missing_model_and_the_command(cache, monkeypatch):
     assert rc == 1
     assert f"BAD fetch model  missing at {cache}" in report.splitlines()
     assert "fetch model: run `make bootstrap` (or `python -m kitbench.robots.fetch_assets`)" in report.splitlines()
+
+
+def test_make_bench_skips_a_robot_whose_model_is_missing(tmp_path):
+    """`bench/run.py` (`make bench`) on a machine without the Fetch model: the Panda's rows, then one line saying
+    Fetch was skipped and why, and exit 0."""
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, fa.OVERRIDE_ENV: str(tmp_path / "nowhere")}
+    args = ["--task", "LiftPegUpright-v1", "--seconds", "0.05", "--no-rgb"]
+    run = subprocess.run(
+        [sys.executable, str(root / "bench" / "run.py"), *args], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "LiftPegUpright-v1 · panda" in run.stdout and "reset(seed)" in run.stdout
+    skipped = [line for line in run.stdout.splitlines() if "fetch" in line]
+    reason = f"{fa.OVERRIDE_ENV}={tmp_path / 'nowhere'} has no fetch.urdf; point it at the folder holding it"
+    assert skipped == [f"LiftPegUpright-v1 · fetch: skipped, its model is not on this machine: {reason}"]

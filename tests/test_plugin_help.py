@@ -46,7 +46,9 @@ def test_lerobot_eval_help_documents_every_kitbench_option():
     lines = {"--env." + part.split()[0]: part for part in flat.split(" --env.")[1:]}
     for option, words in {
         "--env.task": "LiftPegUpright-v1 or AssemblingKits-v1",
-        "--env.obs_type": '"state" (observation.state, observation.environment_state) or "pixels_state"',
+        "--env.obs_type": "the obs mode the dataset was recorded in: rgbd, depth, segmentation",
+        "--env.pointcloud_points": "points per frame, as the dataset stores them",
+        "--env.depth_unit": "lerobot-train's --dataset.depth_output_unit",
         "--env.control_mode": "must be the one the training dataset was recorded in",
         "--env.episode_length": "default: the task's own step limit",
         "--env.perturbations": "Robustness perturbations by name and level",

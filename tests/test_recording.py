@@ -317,7 +317,7 @@ def test_reward_mode_chooses_the_stored_reward_and_is_recorded(tmp_path):
     [
         ({"task": "StackCube-v1"}, "unknown task 'StackCube-v1'; valid choices: AssemblingKits-v1, LiftPegUpright-v1"),
         ({"control_mode": "pd_joint_vel"}, "unknown control_mode 'pd_joint_vel'; valid choices"),
-        ({"obs_mode": "pointcloud"}, "unknown obs_mode 'pointcloud' for recording; valid choices: state, rgb, rgbd"),
+        ({"obs_mode": "none"}, "unknown obs_mode 'none' for recording; valid choices: state, rgb, rgbd, depth, "),
         ({"policy": "oracle"}, "unknown policy 'oracle'; valid choices: expert, random, zero"),
         ({"episodes": 0}, "episodes must be a positive integer, got 0"),
         ({"seed": -1}, "seed must be a non-negative integer, got -1"),

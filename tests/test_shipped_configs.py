@@ -110,7 +110,7 @@ def test_config_fits_the_data_its_recipe_writes(path):
     try:
         recorded = dataset_features(state_env)
         if recipe.obs_mode != "state":
-            recorded.update(observation_features(state_env, images=True))
+            recorded.update(observation_features(state_env, recipe.obs_mode))
     finally:
         state_env.close()
     for key, name in cfg.env.features_map.items():

@@ -73,6 +73,9 @@ class PushCubeEnv(TabletopEnv):
     def target_object(self):
         return self.cube
 
+    def segmentation_names(self):
+        return ("cube",)
+
     def tracked_frames(self):
         return {**super().tracked_frames(), "goal": (self.goal, np.array([1.0, 0.0, 0.0, 0.0]))}
 
@@ -222,3 +225,20 @@ def test_lerobot_plugin_serves_the_task():
         assert list(info["is_success"]) == [False, False]
     finally:
         envs.close()
+
+
+def test_segmentation_labels_the_task_actors_it_declares(needs_vulkan):
+    """`segmentation_names()` gives the cube a stable id after the robot's links; the cube's pixels and points
+    carry it."""
+    env = gym.make(f"kitbench/{TASK}", obs_mode="pointcloud")
+    ids = env.unwrapped.segmentation_id_map
+    assert list(ids.values())[-1] == "cube" and ids[0] == "background"
+    obs, _ = env.reset(seed=0)
+    cloud = obs["pointcloud"]
+    cube = max(ids)
+    on_cube = (cloud["segmentation"][:, 0] == cube) & (cloud["xyzw"][:, 3] > 0)
+    assert on_cube.sum() >= 2  # 64x48 pixels: the hand hides most of the 4 cm cube at reset
+    # every point labelled as the cube lies within its box (half size 2 cm, a millimetre of slack)
+    centre = env.unwrapped.cube.pose.p
+    assert np.abs(cloud["xyzw"][on_cube, :3] - centre).max() <= HALF_SIZE + 1e-3
+    env.close()

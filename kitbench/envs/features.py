@@ -1,17 +1,58 @@
 """The LeRobot features of a kitbench env: the names, types and shapes of its observations and actions.
 
-Defined once, from the env itself, and used by the recorder (a dataset's schema), the runner of trained
-lerobot policies (does the checkpoint fit the env?) and the LeRobot env plugin (`--env.type=kitbench`).
-Shapes follow LeRobot's dataset convention: images (height, width, channels).
+Defined once, from the env itself, and used by the recorder (a dataset's schema and frames), the runner of trained
+lerobot policies (does the checkpoint fit the env? what does it read?) and the LeRobot env plugin
+(`--env.type=kitbench`). Shapes follow LeRobot's dataset convention: images (height, width, channels).
+
+Per camera, by the obs mode's textures (`kitbench.envs.modes`), with LeRobot's own naming of depth cameras
+(`<camera>_depth`, as its robots' depth streams):
+- `observation.images.<camera>`: rgb, video (H, W, 3) uint8;
+- `observation.images.<camera>_depth`: depth, a LeRobot depth video (H, W, 1) float32 metres along the viewing
+  axis, 0 where the pixel sees nothing; stored quantised (`DEPTH_ENCODING`);
+- `observation.images.<camera>_segmentation`: segmentation, a lossless 16-bit PNG image (H, W, 1) uint16 of the
+  env's stable ids (`segmentation_id_map`, kept in the feature's `info`). Not a video: a lossy codec would blend
+  ids at every edge.
+obs_mode `pointcloud`: `observation.pointcloud.xyz` (N, 3) float32 metres, world frame, `.rgb` (N, 3) uint8 and
+`.segmentation` (N, 1) uint16, N points sampled per frame (`kitbench.envs.pointcloud`).
 """
 
 from __future__ import annotations
 
+import numpy as np
+
+from kitbench.envs.modes import POINTCLOUD, camera_textures
+from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.envs.tabletop import POSE_NAMES
 
-__all__ = ["POSE_NAMES", "action_feature", "action_names", "observation_features", "vector"]
+__all__ = [
+    "DEPTH_ENCODING",
+    "POSE_NAMES",
+    "action_feature",
+    "action_names",
+    "as_loaded",
+    "observation_features",
+    "observation_frame",
+    "vector",
+]
 
-# The arm part of each end-effector mode's action; joint modes name the robot's arm joints (`action_names`).
+# The env's camera textures as dataset features: suffix of `observation.images.<camera>`, and the texture.
+DEPTH_SUFFIX = "_depth"
+SEGMENTATION_SUFFIX = "_segmentation"
+POINTCLOUD_PREFIX = "observation.pointcloud."
+# LeRobot's depth quantiser (`DepthEncoderConfig`): 12-bit codes in a lossless HEVC stream. Linear over 0-8.19 m,
+# each code is 2 mm, so a stored depth is within 1 mm of the rendered one (LeRobot's default, logarithmic over
+# 0.01-10 m, rounds within 0.7 mm at 0.5 m and 1.7 mm at 7 m, and reads a pixel that sees nothing, 0, back as
+# 1 cm). Depth beyond 8.19 m is stored as 8.19: every camera of both tasks sees the table within 1.3 m and the
+# farthest floor at 7.6 m.
+# x265 reports its statistics on every file at its own log level, which libav's does not govern.
+DEPTH_ENCODING = {
+    "depth_min": 0.0,
+    "depth_max": 8.19,
+    "use_log": False,
+    "extra_options": {"x265-params": "lossless=1:log-level=error"},
+}
+
+# EE_ACTION_NAMES: the arm part of each end-effector mode's action; joint modes name the robot's arm joints.
 EE_ACTION_NAMES = {
     "pd_ee_delta_pos": ["dx", "dy", "dz"],
     "pd_ee_target_delta_pos": ["dx", "dy", "dz"],
@@ -22,27 +63,104 @@ EE_ACTION_NAMES = {
 STATE = "observation.state"
 ENVIRONMENT_STATE = "observation.environment_state"
 IMAGES = "observation.images."
+HWC = ["height", "width", "channels"]
 
 
 def vector(names, dtype: str = "float32") -> dict:
     return {"dtype": dtype, "shape": (len(names),), "names": list(names)}
 
 
-def observation_features(env, images: bool | None = None) -> dict[str, dict]:
-    """`observation.state`, `observation.environment_state` and, with `images` (default: when the env's
-    observations have cameras), one `observation.images.<camera>` per camera of the task's image modes."""
+def observation_features(env, obs_mode: str | None = None, points: int = DEFAULT_POINTS) -> dict[str, dict]:
+    """`observation.state`, `observation.environment_state` and what `obs_mode` (default: the env's own) adds:
+    camera features by texture, or the point cloud's (`points` per frame). Any env of the task and robot gives
+    the same features for a mode: the cameras are read off their specs, so a state env needs no renderer."""
     u = env.unwrapped
+    obs_mode = u.obs_mode if obs_mode is None else obs_mode
     features = {STATE: vector(u.robot_state_names), ENVIRONMENT_STATE: vector(u.environment_state_names())}
-    if images is None:
-        images = bool(u.camera_names)
-    if images:
-        for spec in u.camera_specs():
-            features[IMAGES + spec.name] = {
+    if obs_mode == POINTCLOUD:
+        ids = {"segmentation_ids": {str(i): name for i, name in u.segmentation_id_map.items()}}
+        features[POINTCLOUD_PREFIX + "xyz"] = {
+            "dtype": "float32",
+            "shape": (points, 3),
+            "names": None,
+            "info": {"unit": "m", "frame": "world"},
+        }
+        features[POINTCLOUD_PREFIX + "rgb"] = {"dtype": "uint8", "shape": (points, 3), "names": None}
+        features[POINTCLOUD_PREFIX + "segmentation"] = {
+            "dtype": "uint16",
+            "shape": (points, 1),
+            "names": None,
+            "info": ids,
+        }
+        return features
+    textures = camera_textures(obs_mode)
+    for spec in u.camera_specs():
+        key = IMAGES + spec.name
+        if "rgb" in textures:
+            features[key] = {"dtype": "video", "shape": (spec.height, spec.width, 3), "names": HWC}
+        if "depth" in textures:
+            features[key + DEPTH_SUFFIX] = {
                 "dtype": "video",
-                "shape": (spec.height, spec.width, 3),
-                "names": ["height", "width", "channels"],
+                "shape": (spec.height, spec.width, 1),
+                "names": HWC,
+                # LeRobot adds depth_unit "m" (float frames) and the quantiser's settings when it encodes
+                "info": {"is_depth_map": True, "depth": "along the viewing axis (z-depth); 0: the pixel sees nothing"},
+            }
+        if "segmentation" in textures:
+            features[key + SEGMENTATION_SUFFIX] = {
+                "dtype": "image",
+                "shape": (spec.height, spec.width, 1),
+                "names": HWC,
+                "info": {"segmentation_ids": {str(i): name for i, name in u.segmentation_id_map.items()}},
             }
     return features
+
+
+def observation_frame(env, obs, sampler: PointSampler | None = None) -> dict[str, np.ndarray]:
+    """The dataset values of `observation_features` for the observation `obs` the env just returned: what the
+    recorder stores and what a trained policy is fed (`sampler` draws the point cloud's points; obs_mode pointcloud
+    only)."""
+    u = env.unwrapped
+    frame = {STATE: u.robot_state(), ENVIRONMENT_STATE: u.environment_state()}
+    if not isinstance(obs, dict):  # obs_mode state or none: a flat vector, nothing beyond the two states
+        return frame
+    if "pointcloud" in obs:
+        if sampler is None:
+            raise ValueError("obs_mode pointcloud needs a PointSampler to draw a frame's points")
+        for name, value in sampler.sample(obs["pointcloud"]).items():
+            frame[POINTCLOUD_PREFIX + name] = value
+        return frame
+    for camera, data in obs.get("sensor_data", {}).items():
+        key = IMAGES + camera
+        if "rgb" in data:
+            frame[key] = data["rgb"]
+        if "depth" in data:
+            frame[key + DEPTH_SUFFIX] = data["depth"]
+        if "segmentation" in data:
+            frame[key + SEGMENTATION_SUFFIX] = data["segmentation"]
+    return frame
+
+
+def is_depth(name: str) -> bool:
+    return name.startswith(IMAGES) and name.endswith(DEPTH_SUFFIX)
+
+
+def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str, np.ndarray]:
+    """A frame in the layout stock `LeRobotDataset` returns it, as numpy: images channels first, rgb as float32 in
+    [0, 1], depth as float32 in `depth_unit` (LeRobot's `depth_output_unit`, "mm" by default), segmentation ids as
+    float32, point cloud colours and ids as int64; what a policy trained on the dataset must be fed."""
+    scale = {"mm": 1000.0, "m": 1.0}[depth_unit]
+    out = {}
+    for name, value in frame.items():
+        if not name.startswith(IMAGES):
+            out[name] = value.astype(np.int64) if value.dtype.kind in "ui" else value
+        elif is_depth(name):
+            out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)) * np.float32(scale)
+        elif name.endswith(SEGMENTATION_SUFFIX):
+            out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)).astype(np.float32)
+        else:
+            out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)).astype(np.float32) / np.float32(255)
+    return out
 
 
 def action_names(env) -> list[str]:

@@ -1,7 +1,51 @@
-"""The observation and reward modes every task supports (`kitbench.errors.check_choice` refuses others)."""
+"""The observation and reward modes every task supports (`kitbench.errors.check_choice` refuses others).
+
+Camera modes follow ManiSkill 3's names: a camera texture (`rgb`, `depth`, `segmentation`) or several joined by
+`+` in that order, `rgbd` for `rgb+depth`, and `pointcloud` (every camera's pixels fused into one world-frame
+cloud with rgb and segmentation per point). `camera_textures` says which textures a mode renders.
+"""
 
 from __future__ import annotations
 
-OBS_MODES = ("none", "state", "state_dict", "rgb", "rgbd")
+import itertools
+
+TEXTURES = ("rgb", "depth", "segmentation")
+# every non-empty combination of the textures, in TEXTURES' order ("rgb+depth+segmentation")
+_TEXTURE_MODES = tuple(
+    "+".join(combo) for n in range(1, len(TEXTURES) + 1) for combo in itertools.combinations(TEXTURES, n)
+)
+POINTCLOUD = "pointcloud"
+IMAGE_OBS_MODES = (*_TEXTURE_MODES[:1], "rgbd", *_TEXTURE_MODES[1:], POINTCLOUD)
+"""Every obs mode that renders cameras."""
+OBS_MODES = ("none", "state", "state_dict", *IMAGE_OBS_MODES)
 REWARD_MODES = ("dense", "normalized_dense", "sparse", "none")
-IMAGE_OBS_MODES = ("rgb", "rgbd")
+
+
+def camera_textures(obs_mode: str) -> frozenset[str]:
+    """The textures an obs mode renders per camera: none for the state modes, all three for `pointcloud` (a
+    point's position comes from depth, its colour and label from rgb and segmentation)."""
+    if obs_mode == POINTCLOUD:
+        return frozenset(TEXTURES)
+    if obs_mode == "rgbd":
+        return frozenset(("rgb", "depth"))
+    if obs_mode in _TEXTURE_MODES:
+        return frozenset(obs_mode.split("+"))
+    return frozenset()
+
+
+def obs_mode_for(features) -> str:
+    """The obs mode whose observations hold the dataset features named in `features` (keys): `pointcloud` for a
+    point cloud, else the cameras' textures (`<camera>` rgb, `<camera>_depth`, `<camera>_segmentation`), rgb with
+    depth spelled `rgbd`; `state` for none."""
+    names = list(features)
+    if any(n.startswith("observation.pointcloud.") for n in names):
+        return POINTCLOUD
+    images = [n for n in names if n.startswith("observation.images.")]
+    textures = {
+        "depth" if n.endswith("_depth") else "segmentation" if n.endswith("_segmentation") else "rgb" for n in images
+    }
+    if not textures:
+        return "state"
+    if textures == {"rgb", "depth"}:
+        return "rgbd"
+    return "+".join(t for t in TEXTURES if t in textures)

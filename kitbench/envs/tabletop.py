@@ -8,7 +8,7 @@ the LeRobot plugin) asks the task through the public hooks below, never by its n
 Hooks the base calls while building and stepping (protected, as in ManiSkill): `_load_task`,
 `_initialize_episode`, `_sensor_cameras`, `_render_camera`. Hooks the rest of kitbench calls (public):
 `evaluate`, `task_state`, `compute_dense_reward`, `task_description`, `target_object`, `failure_category`,
-`tracked_frames`, `episode_config`, `make_expert`, and the class attributes `success_criteria`,
+`tracked_frames`, `episode_config`, `make_expert`, `segmentation_names`, and the class attributes `success_criteria`,
 `failure_categories`, `environment_state_keys`, `report_groups`.
 """
 
@@ -29,8 +29,10 @@ from gymnasium import spaces
 from kitbench.control.controllers import CONTROL_MODES, make_controller
 from kitbench.control.kinematics import ArmKinematics, arm_joint_limits
 from kitbench.envs.grasp import GraspHistory
-from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, REWARD_MODES
+from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, POINTCLOUD, REWARD_MODES, camera_textures
 from kitbench.envs.observations import flatten_state, pose7, space_for
+from kitbench.envs.pointcloud import fuse_cameras
+from kitbench.envs.segmentation import SEGMENTATION_FIXED, segmentation_lut
 from kitbench.errors import KitbenchError, check_choice
 from kitbench.perturbations import Perturbations
 from kitbench.robots import ROBOTS, Robot, RobotSpec
@@ -47,6 +49,11 @@ POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
 # to a speed: under random absolute targets its fingers reach 66 m/s (the gripper drive slamming them against
 # their limits) without anything going wrong; they are checked for NaN and inf only.
 MAX_BODY_SPEED = 25.0
+# Points farther than this along their camera's viewing axis leave the point cloud (w = 0). Measured at reset
+# (seed 0): the table's pixels lie within 1.27 m of every camera of both tasks (LiftPegUpright's base camera:
+# 0.43-1.27 m; the robot and the objects within 0.86 m) and the floor's from 1.53 m on (out to 7.6 m): 1.5 m keeps
+# the workspace and drops the floor.
+DEFAULT_POINTCLOUD_RANGE = 1.5
 
 
 class TabletopEnv(gym.Env, abc.ABC):
@@ -101,7 +108,10 @@ class TabletopEnv(gym.Env, abc.ABC):
         robot_init_qpos_noise: float | None = None,
         sim_config: SimConfig | None = None,
         perturbations: Mapping[str, float] | None = None,
+        pointcloud_range: float = DEFAULT_POINTCLOUD_RANGE,
     ):
+        """`pointcloud_range`: in obs_mode pointcloud, the depth (m, along each camera's viewing axis) beyond which
+        a point is dropped from the cloud (its w set to 0)."""
         robot_uids = robot_uids or self.supported_robots[0]
         check_choice("obs_mode", obs_mode, OBS_MODES)
         check_choice("control_mode", control_mode, CONTROL_MODES)
@@ -113,6 +123,12 @@ class TabletopEnv(gym.Env, abc.ABC):
                 f"valid choices: {', '.join(self.supported_robots)}"
             )
         check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        if isinstance(pointcloud_range, bool) or not (
+            isinstance(pointcloud_range, int | float | np.integer | np.floating) and 0 < pointcloud_range < np.inf
+        ):
+            raise KitbenchError(f"pointcloud_range must be a positive number of metres, got {pointcloud_range!r}")
+        self.pointcloud_range = float(pointcloud_range)
+        self._textures = camera_textures(obs_mode)
         self.obs_mode = obs_mode
         self.control_mode = control_mode
         self.reward_mode = reward_mode
@@ -134,6 +150,8 @@ class TabletopEnv(gym.Env, abc.ABC):
         )
         self._cameras: dict[str, Camera] = {}
         self._human_camera: Camera | None = None
+        self._segmentation_lut: np.ndarray | None = None  # per_scene_id -> stable id, for the current scene
+        self._segmentation_names: tuple[str, ...] = ()
         self.action_space: spaces.Box = self._action_space()
         self.elapsed_steps = 0
         # Robustness perturbations (kitbench.perturbations), applied at the hooks below; their draws derive from
@@ -143,6 +161,16 @@ class TabletopEnv(gym.Env, abc.ABC):
         self._perturbation_keys = np.random.default_rng()
         obs, _ = self.reset(seed=0)
         self.observation_space = space_for(obs)
+
+    @property
+    def segmentation_id_map(self) -> dict[int, str]:
+        """The stable id of every label a segmentation can hold, to its name: 0 background (nothing), the ground,
+        the table, the robot's links in its model's order, then the task's `segmentation_names`. The same for
+        every episode of this env (robot and task), whatever the episode builds."""
+        if not self._segmentation_names:
+            links = tuple(link.name for link in self.robot.articulation.links)
+            self._segmentation_names = (*SEGMENTATION_FIXED, *links, *self.segmentation_names())
+        return dict(enumerate(self._segmentation_names))
 
     # -- task hooks: building and stepping (called by this class) ------------------------------
     @abc.abstractmethod
@@ -201,6 +229,12 @@ class TabletopEnv(gym.Env, abc.ABC):
         the target object by default; tasks add goals and fixtures."""
         pose = self.target_object.pose
         return {self.target_object.name: (pose.p, pose.q)}
+
+    def segmentation_names(self) -> tuple[str, ...]:
+        """The names of every actor the task may build, in a fixed order: their segmentation ids follow the
+        robot's links' (`segmentation_id_map`). An obs mode with segmentation refuses a scene that shows an actor
+        missing here."""
+        return ()
 
     def episode_config(self) -> dict:
         """What the current episode's seed chose beyond object poses (AssemblingKits: the kit and the shape), as
@@ -331,6 +365,7 @@ class TabletopEnv(gym.Env, abc.ABC):
         self.robot = Robot(self.scene, self._robot_spec, base, render=self._renders)
         self._load_task(self.scene, self._renders)
         self._cameras, self._human_camera = {}, None
+        self._segmentation_lut = None
         if self.obs_mode in IMAGE_OBS_MODES:
             specs = [self.perturbations.camera(s) for s in self.camera_specs()]
             self._cameras = {s.name: Camera(self.scene, s, self._mount(s)) for s in specs}
@@ -476,12 +511,17 @@ class TabletopEnv(gym.Env, abc.ABC):
 
     @property
     def observes_images(self) -> bool:
-        """Whether observations hold camera images (obs_mode rgb or rgbd)."""
+        """Whether observations come from cameras (any obs mode in `IMAGE_OBS_MODES`)."""
         return self.obs_mode in IMAGE_OBS_MODES
 
     @property
+    def camera_textures(self) -> frozenset[str]:
+        """What this env's obs mode renders per camera: a subset of rgb, depth, segmentation."""
+        return self._textures
+
+    @property
     def camera_names(self) -> tuple[str, ...]:
-        """Cameras in this env's observations (empty unless obs_mode is rgb or rgbd)."""
+        """Cameras in this env's observations (empty unless the obs mode renders them)."""
         return tuple(self._cameras)
 
     def _observation(self, info: dict):
@@ -495,14 +535,32 @@ class TabletopEnv(gym.Env, abc.ABC):
         self.scene.update_render()
         for camera in self._cameras.values():
             camera.take_picture()
+        textures = self._textures
         sensor_data, sensor_param = {}, {}
         for name, camera in self._cameras.items():
-            data = {"rgb": camera.rgb()}
-            if self.obs_mode == "rgbd":
+            data = {}
+            if "rgb" in textures:
+                data["rgb"] = camera.rgb()
+            if "depth" in textures:
                 data["depth"] = camera.depth()
+            if "segmentation" in textures:
+                data["segmentation"] = self._segmentation(camera)
             sensor_data[name] = data
             sensor_param[name] = camera.params()
+        if self.obs_mode == POINTCLOUD:
+            return {**state, "pointcloud": self._pointcloud(sensor_data, sensor_param), "sensor_param": sensor_param}
         return {**state, "sensor_data": sensor_data, "sensor_param": sensor_param}
+
+    def _segmentation(self, camera: Camera) -> np.ndarray:
+        """(H, W, 1) uint16 stable ids (`segmentation_id_map`) of what each pixel sees; the scene's table is built
+        at its first segmentation, once the task has built everything (AssemblingKits builds its kit while it
+        initialises the episode)."""
+        if self._segmentation_lut is None:
+            self._segmentation_lut = segmentation_lut(self.scene, self.robot, self.segmentation_id_map, type(self))
+        return self._segmentation_lut[camera.entity_ids()][..., None]
+
+    def _pointcloud(self, sensor_data: dict, sensor_param: dict) -> dict[str, np.ndarray]:
+        return fuse_cameras(self._cameras, sensor_data, sensor_param, self.pointcloud_range)
 
     @property
     def control_timestep(self) -> float:

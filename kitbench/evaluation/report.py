@@ -253,6 +253,14 @@ def markdown(report: dict) -> str:
         f"reward `{suite['reward_mode']}`. "
         f"kitbench {report['kitbench_version']}.",
         "",
+        *(
+            [
+                f"Policy options for this run: {', '.join(f'`{k}={v}`' for k, v in report['policy_options'].items())}.",
+                "",
+            ]
+            if report.get("policy_options")
+            else []
+        ),
         f"**Success: {_pct(report['success'])}** ({_headline_text(report)})",
         "",
         f"- success_once (successful at any step): {_pct(report['success_once'])}",

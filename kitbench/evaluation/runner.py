@@ -19,7 +19,7 @@ from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.suite import Suite
-from kitbench.evaluation.work import EvalWork, Film, Trial, make_suite_env
+from kitbench.evaluation.work import Batch, EvalWork, Film, Trial, make_suite_env
 
 REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
 
@@ -40,6 +40,13 @@ class EvalConfig:
     # Suite settings the user chose explicitly; a policy's own needs may change the others (e.g. an
     # image-based policy turns obs_mode "state" into "rgb") but must not contradict these.
     explicit: frozenset[str] = frozenset()
+    # Episodes each worker runs in lockstep, with one policy call a step for all of them (`Batch`); 1: one at a
+    # time. Seeds and results do not depend on it (a trained network's actions to float rounding: docs/evaluation.md).
+    batch_size: int = 1
+    # Where a trained policy's network runs: auto (CUDA when torch sees it), cpu or cuda.
+    device: str = "auto"
+    # A lerobot checkpoint's config fields set for this run (`--policy-option KEY=VALUE`), recorded in the report.
+    policy_options: tuple[tuple[str, object], ...] = ()
 
 
 def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite:
@@ -77,7 +84,8 @@ def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite
     if obs is not None and obs != suite.obs_mode:
         if "obs_mode" in explicit and suite.obs_mode == "state":
             raise KitbenchError(
-                f"policy {policy.name} needs camera images (obs_mode {obs}); --obs-mode {suite.obs_mode} has none"
+                f"policy {policy.name} needs obs_mode {obs} (it reads cameras or a point cloud); --obs-mode "
+                f"{suite.obs_mode} has none"
             )
         if suite.obs_mode == "state":
             changes["obs_mode"] = obs
@@ -108,14 +116,20 @@ def check_out_folder(out: Path, overwrite: bool) -> None:
 
 
 def validate(config: EvalConfig):
-    """Every check that can fail before anything is written or run at length; returns (suite, policy)."""
+    """Every check that can fail before anything is written or run at length; returns (suite, policy, the control
+    step's seconds, fps, the device a trained policy runs on)."""
+    from kitbench.policies.lerobot_policy import resolve_device
     from kitbench.policies.registry import make_policy
 
     ExecutorConfig(config.executor, config.workers, config.ray_address).validate()
     if not isinstance(config.videos, int) or config.videos < 0:
         raise KitbenchError(f"videos must be a non-negative integer, got {config.videos!r}")
+    size = config.batch_size
+    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+        raise KitbenchError(f"batch_size must be a positive integer, got {size!r}")
+    device = resolve_device(config.device)
     check_out_folder(Path(config.out), config.overwrite)
-    policy = make_policy(config.policy)
+    policy = make_policy(config.policy, device, dict(config.policy_options))
     suite = fit_suite_to_policy(config.suite, policy, config.explicit)
     from kitbench.doctor import require_renderer
 
@@ -128,7 +142,7 @@ def validate(config: EvalConfig):
         fps = env.unwrapped.sim_config.control_freq
     finally:
         env.close()
-    return suite, policy, timestep, fps
+    return suite, policy, timestep, fps, device
 
 
 def run_eval(config: EvalConfig, progress: bool = True) -> dict:
@@ -136,21 +150,23 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     and write the report again with them. A failed video pass leaves the report, with `output.video_error`
     saying why, and returns normally."""
     wall_start = time.monotonic()
-    suite, policy, timestep, fps = validate(config)
+    suite, policy, timestep, fps, device = validate(config)
     del policy
     out = Path(config.out)
     start = time.monotonic()
-    executor = make_executor(ExecutorConfig(config.executor, config.workers, config.ray_address), len(suite.seeds))
+    jobs = _jobs(suite, config.batch_size)
+    executor = make_executor(ExecutorConfig(config.executor, config.workers, config.ray_address), len(jobs))
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
-    with RolloutEngine(executor, EvalWork(suite, config.policy)) as engine:
+    options = dict(config.policy_options)
+    with RolloutEngine(executor, EvalWork(suite, config.policy, device, options)) as engine:
         out.mkdir(parents=True, exist_ok=True)
         for stale in (REPORT_JSON, REPORT_MD):
             (out / stale).unlink(missing_ok=True)
         for stale in (PLOTS_DIR, VIDEOS_DIR):
             shutil.rmtree(out / stale, ignore_errors=True)
-        results, perturbed = _score(engine, suite, progress)
+        results, perturbed = _score(engine, suite, jobs, progress)
         scored = time.monotonic()
-        report = _write_report(suite, config.policy, results, timestep, out, perturbed)
+        report = _write_report(suite, config.policy, results, timestep, out, perturbed, options)
         reported = time.monotonic()
         # Wall time from the call to the report, and its parts: checking the setup (loading the policy, building
         # an env: seconds for a lerobot checkpoint), scoring (worker start-up included) and writing the report.
@@ -164,6 +180,8 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             "video_seconds": 0.0,
             "workers": engine.workers,
             "executor": config.executor,
+            "batch_size": config.batch_size,
+            "device": device,
             "episodes_per_minute": 60.0 * len(results) / max(reported - wall_start, 1e-9),
         }
         _save(report, out)
@@ -180,39 +198,51 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     return report
 
 
-def _jobs(suite: Suite) -> list[int | Trial]:
-    """The nominal seeds, then every seed under each perturbation and level (`suite.conditions`)."""
-    jobs: list[int | Trial] = list(suite.seeds)
+def _jobs(suite: Suite, batch_size: int = 1) -> list[int | Trial | Batch]:
+    """The nominal seeds, then every seed under each perturbation and level (`suite.conditions`): one job a seed,
+    or with `batch_size` > 1 one `Batch` per `batch_size` consecutive seeds of a condition."""
+    if batch_size > 1:
+        seeds = suite.seeds
+        return [
+            Batch(tuple(seeds[i : i + batch_size]), condition)
+            for condition in suite.conditions
+            for i in range(0, len(seeds), batch_size)
+        ]
+    jobs: list[int | Trial | Batch] = list(suite.seeds)
     for condition in suite.conditions[1:]:
         assert condition is not None
         jobs += [Trial(seed, *condition) for seed in suite.seeds]
     return jobs
 
 
+def _condition(job: int | Trial | Batch) -> tuple[str, float] | None:
+    if isinstance(job, Trial):
+        return (job.perturbation, job.level)
+    return job.condition if isinstance(job, Batch) else None
+
+
 def _score(
-    engine: RolloutEngine, suite: Suite, progress: bool
+    engine: RolloutEngine, suite: Suite, jobs: list[int | Trial | Batch], progress: bool
 ) -> tuple[list[EpisodeResult], dict[tuple[str, float], list[EpisodeResult]]]:
     """The nominal results, and the results under each (perturbation, level), in seed order."""
-    jobs = _jobs(suite)
     bar = None
     if progress:
         from kitbench.progress import progress as progress_bar
 
-        bar = progress_bar(len(jobs), f"eval {suite.task}")
+        bar = progress_bar(len(suite.seeds) * len(suite.conditions), f"eval {suite.task}")
     results: list[EpisodeResult] = []
     perturbed: dict[tuple[str, float], list[EpisodeResult]] = {}
     try:
         for job, result in zip(jobs, engine.map(jobs), strict=True):
-            if isinstance(job, Trial):
-                perturbed.setdefault((job.perturbation, job.level), []).append(result)
-            else:
-                results.append(result)
+            condition = _condition(job)
+            scored = result if isinstance(job, Batch) else [result]
+            (results if condition is None else perturbed.setdefault(condition, [])).extend(scored)
             if bar is not None:
-                bar.update(1)
-                if not perturbed:
+                bar.update(len(scored))
+                if condition is None:
                     bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
                 else:
-                    bar.set_postfix(condition=f"{job.perturbation}={job.level:g}")  # type: ignore[union-attr]
+                    bar.set_postfix(condition=f"{condition[0]}={condition[1]:g}")
     finally:
         if bar is not None:
             bar.close()
@@ -226,11 +256,14 @@ def _write_report(
     timestep: float,
     out: Path,
     perturbed: dict[tuple[str, float], list[EpisodeResult]] | None = None,
+    policy_options: dict | None = None,
 ) -> dict:
     from kitbench.evaluation.plots import write_plots
     from kitbench.evaluation.report import build_report
 
     report = build_report(suite, policy, results, timestep, perturbed)
+    if policy_options:
+        report["policy_options"] = dict(policy_options)
     report["output"] = {"videos": []}
     report["output"]["plots"] = [str(p.relative_to(out)) for p in write_plots(report, out / PLOTS_DIR)]
     return report

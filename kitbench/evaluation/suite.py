@@ -27,7 +27,7 @@ from kitbench.perturbations import PERTURBATIONS, make_perturbation
 from kitbench.registration import TASKS, canonical_task, task_entry
 from kitbench.settings import check_seed, is_seed, read_settings
 
-OBS_MODES_EVALUABLE = ("state", "rgb", "rgbd")
+OBS_MODES_EVALUABLE = ("state", *IMAGE_OBS_MODES)
 SUITE_KEYS = (
     "name",
     "task",

@@ -1,7 +1,8 @@
 """The evaluation's `Work`: a worker builds the suite's env and the policy once, then scores seeds
 (`episode.evaluate_episode`), scores seeds under a perturbation (`Trial`: one env per perturbation and level,
-built on its first trial), or films them (`Film`: the episode replayed in an env that renders, returned with its
-MP4's bytes, so a video made on another machine reaches the report folder)."""
+built on its first trial), scores a `Batch` of seeds in lockstep (`episode.evaluate_batch`: one env per episode
+of the batch, one policy call a step for all of them), or films them (`Film`: the episode replayed in an env that
+renders, returned with its MP4's bytes, so a video made on another machine reaches the report folder)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from kitbench.engine.work import Work
-from kitbench.evaluation.episode import EpisodeResult, evaluate_episode
+from kitbench.evaluation.episode import EpisodeResult, evaluate_batch, evaluate_episode
 from kitbench.evaluation.suite import Suite
 
 
@@ -32,6 +33,14 @@ class Trial:
     level: float
 
 
+@dataclass(frozen=True)
+class Batch:
+    """Score `seeds` together (under `condition`, a (perturbation, level), when given)."""
+
+    seeds: tuple[int, ...]
+    condition: tuple[str, float] | None = None
+
+
 def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, float] | None = None):
     from kitbench.registration import make_env
 
@@ -47,31 +56,40 @@ def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, 
 
 
 class EvalWork(Work):
-    def __init__(self, suite: Suite, policy: str):
+    def __init__(self, suite: Suite, policy: str, device: str = "cpu", options: dict | None = None):
+        """`device`: where a trained policy's network runs (resolved: cpu or cuda); `options`: its config's
+        settings for this run."""
         self.suite = suite
         self.policy_spec = policy
+        self.device = device
+        self.options = dict(options or {})
         self._env: Any = None
         self._video_env: Any = None
         self._perturbed_envs: dict[tuple[str, float], Any] = {}
+        self._batch_envs: dict[tuple[str, float] | None, list] = {}
         self._policy: Any = None
+        self._batched: Any = None
 
     def __getstate__(self) -> dict:
-        return {"suite": self.suite, "policy": self.policy_spec}  # the settings travel, never a built env
+        # the settings travel, never a built env
+        return {"suite": self.suite, "policy": self.policy_spec, "device": self.device, "options": self.options}
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__(state["suite"], state["policy"])  # type: ignore[misc]
+        self.__init__(state["suite"], state["policy"], state["device"], state["options"])  # type: ignore[misc]
 
     def setup(self) -> None:
         from kitbench.policies.registry import make_policy
 
         self._env = make_suite_env(self.suite)
-        self._policy = make_policy(self.policy_spec)
+        self._policy = make_policy(self.policy_spec, self.device, self.options)
 
-    def run(self, job: int | Trial | Film) -> EpisodeResult | tuple[EpisodeResult, bytes]:
-        """A seed → its score; a `Trial` → its score under the perturbation; a `Film` → (the replayed episode's
-        score, the MP4's bytes)."""
+    def run(self, job: int | Trial | Batch | Film) -> EpisodeResult | list[EpisodeResult] | tuple[EpisodeResult, bytes]:
+        """A seed → its score; a `Trial` → its score under the perturbation; a `Batch` → its seeds' scores; a
+        `Film` → (the replayed episode's score, the MP4's bytes)."""
         if isinstance(job, Film):
             return self.film(job)
+        if isinstance(job, Batch):
+            return self.run_batch(job)
         if isinstance(job, Trial):
             condition = (job.perturbation, job.level)
             env = self._perturbed_envs.get(condition)
@@ -79,6 +97,18 @@ class EvalWork(Work):
                 env = self._perturbed_envs[condition] = make_suite_env(self.suite, perturbation=condition)
             return evaluate_episode(env, self._policy, job.seed, settle_steps=self.suite.settle_steps)
         return evaluate_episode(self._env, self._policy, job, settle_steps=self.suite.settle_steps)
+
+    def run_batch(self, job: Batch) -> list[EpisodeResult]:
+        """The batch's seeds in lockstep, on envs kept per condition (the largest batch's worth)."""
+        from kitbench.policies.batch import batched
+        from kitbench.policies.registry import make_policy
+
+        envs = self._batch_envs.setdefault(job.condition, [])
+        while len(envs) < len(job.seeds):
+            envs.append(make_suite_env(self.suite, perturbation=job.condition))
+        if self._batched is None:
+            self._batched = batched(self._policy, lambda: make_policy(self.policy_spec, self.device, self.options))
+        return evaluate_batch(envs, self._batched, list(job.seeds), self.suite.settle_steps)
 
     def film(self, job: Film) -> tuple[EpisodeResult, bytes]:
         from kitbench.evaluation.video import write_mp4
@@ -92,8 +122,10 @@ class EvalWork(Work):
             return result, path.read_bytes()
 
     def close(self) -> None:
-        for env in (self._env, self._video_env, *self._perturbed_envs.values()):
+        batch_envs = [env for envs in self._batch_envs.values() for env in envs]
+        for env in (self._env, self._video_env, *self._perturbed_envs.values(), *batch_envs):
             if env is not None:
                 env.close()
         self._env = self._video_env = None
         self._perturbed_envs = {}
+        self._batch_envs = {}

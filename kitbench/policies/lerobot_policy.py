@@ -1,8 +1,9 @@
 """Policies trained with `lerobot-train` (ACT, Diffusion, ...), run on kitbench envs.
 
 The checkpoint's own pre/post-processors normalise inputs and un-normalise actions; observations are fed under
-the dataset's feature names. A checkpoint whose inputs or action size do not match the env is refused with
-both lists.
+the dataset's feature names, in the layout stock `LeRobotDataset` gave them in training (`features.as_loaded`:
+depth in the training run's `depth_output_unit`, point clouds drawn with the episode's seed). A checkpoint whose
+inputs or action size do not match the env is refused with both lists.
 """
 
 from __future__ import annotations
@@ -12,7 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.envs.features import IMAGES, observation_features
+from kitbench.envs.features import IMAGES, POINTCLOUD_PREFIX, as_loaded, observation_features, observation_frame
+from kitbench.envs.modes import obs_mode_for
+from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.errors import KitbenchError
 from kitbench.metadata import read_recording_settings
 
@@ -28,10 +31,11 @@ def _resolve(path: str) -> Path:
     )
 
 
-def env_features(env) -> dict[str, tuple[int, ...]]:
-    """What a kitbench env provides, under dataset names, in the shapes a policy sees (images channels first)."""
+def env_features(env, points: int = DEFAULT_POINTS) -> dict[str, tuple[int, ...]]:
+    """What a kitbench env provides, under dataset names, in the shapes a policy sees (images channels first;
+    `points` per point cloud)."""
     provided = {}
-    for name, feature in observation_features(env).items():
+    for name, feature in observation_features(env, points=points).items():
         shape = tuple(feature["shape"])
         provided[name] = (shape[2], shape[0], shape[1]) if name.startswith(IMAGES) else shape
     return provided
@@ -59,41 +63,117 @@ def trained_setting(checkpoint: Path, key: str) -> str | None:
     return env.get(key) if env.get("type") == "kitbench" else None
 
 
+def trained_depth_unit(checkpoint: Path) -> str:
+    """The unit depth images were given to the policy in while it trained: the training run's
+    `dataset.depth_output_unit`, LeRobot's default ("mm") when it names none."""
+    path = checkpoint / "train_config.json"
+    train = json.loads(path.read_text()) if path.is_file() else {}
+    return (train.get("dataset") or {}).get("depth_output_unit") or "mm"
+
+
 def trained_control_mode(checkpoint: Path) -> str | None:
     """The control mode of the actions a checkpoint was trained on (`trained_setting`)."""
     return trained_setting(checkpoint, "control_mode")
+
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(device: str) -> str:
+    """`auto`: CUDA when torch sees it, else the CPU; `cuda` without CUDA is refused in one line."""
+    from kitbench.errors import check_choice
+
+    check_choice("device", device, DEVICES)
+    import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise KitbenchError(
+            f"device 'cuda': torch {torch.__version__} sees no CUDA device here; valid choices: auto, cpu"
+        )
+    return device
+
+
+def parse_option(text: str) -> tuple[str, object]:
+    """`KEY=VALUE` of `--policy-option`: the value read as JSON (`0.01`, `5`, `null`, `true`), else as text."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise KitbenchError(f"policy option {text!r} is not KEY=VALUE (e.g. n_action_steps=5)")
+    try:
+        value = json.loads(raw)
+    except ValueError:
+        value = raw
+    return key.strip(), value
+
+
+def apply_options(cfg, options: dict) -> None:
+    """Set a checkpoint's config fields for this run (inference settings: `temporal_ensemble_coeff`,
+    `n_action_steps`, `num_inference_steps`, ...), then re-run the config's own checks. A key the policy's config
+    does not have, or a combination it refuses, is one line."""
+    import dataclasses
+
+    fields = {f.name for f in dataclasses.fields(cfg)}
+    for key, value in options.items():
+        if key not in fields:
+            raise KitbenchError(
+                f"policy option {key!r}: the {cfg.type} policy has no such setting; valid choices: "
+                f"{', '.join(sorted(fields))}"
+            )
+        setattr(cfg, key, value)
+    try:
+        cfg.__post_init__()
+    except (ValueError, TypeError, NotImplementedError) as exc:
+        detail = " ".join(str(exc).split())
+        raise KitbenchError(f"policy options {options}: the {cfg.type} config refuses them: {detail}") from exc
 
 
 class LeRobotPolicy:
     name = "lerobot"
     phase = None
 
-    def __init__(self, checkpoint: str):
+    def __init__(self, checkpoint: str, device: str = "cpu", options: dict | None = None):
+        """`device`: where the network runs (`resolve_device`'s choices); its inputs are built on the CPU.
+        `options`: config fields set for this run (`apply_options`)."""
         import torch
         from lerobot.configs import PreTrainedConfig
         from lerobot.policies import make_pre_post_processors
         from lerobot.policies.factory import get_policy_class
 
+        device = resolve_device(device)
         path = _resolve(checkpoint)
         cfg = PreTrainedConfig.from_pretrained(path)
-        cfg.device = "cpu"
+        cfg.device = device
         if hasattr(cfg, "pretrained_backbone_weights"):
             cfg.pretrained_backbone_weights = None  # the trained weights replace them; never download
+        self.options = dict(options or {})
+        apply_options(cfg, self.options)
         self.config = cfg
         self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         self.pre, self.post = make_pre_post_processors(
-            cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}}
+            cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": device}}
         )
+        self.device = device
         self._torch = torch
         self.name = f"lerobot:{checkpoint}"
         self.control_mode = trained_control_mode(path)
         self.robot = trained_setting(path, "robot")
+        self.depth_unit = trained_depth_unit(path)
+        self._sampler: PointSampler | None = None
+
+    @property
+    def points(self) -> int:
+        """Points per cloud the policy reads (its `observation.pointcloud.xyz` input; the default when none)."""
+        cloud = self.config.input_features.get(POINTCLOUD_PREFIX + "xyz")
+        return int(cloud.shape[0]) if cloud is not None else DEFAULT_POINTS
 
     def requirements(self) -> dict:
-        """What the env must provide: camera images if the policy reads any, its training control mode."""
+        """What the env must provide: the obs mode that gives the policy's inputs (cameras' textures, a point
+        cloud), its training control mode and robot."""
         needs = {}
-        if any(k.startswith("observation.images.") for k in self.config.input_features):
-            needs["obs_mode"] = "rgb"
+        obs_mode = obs_mode_for(self.config.input_features)
+        if obs_mode != "state":
+            needs["obs_mode"] = obs_mode
         if self.control_mode is not None:
             needs["control_mode"] = self.control_mode
         if self.robot is not None:
@@ -101,7 +181,7 @@ class LeRobotPolicy:
         return needs
 
     def check(self, env) -> None:
-        provided = env_features(env)
+        provided = env_features(env, self.points)
         expected = {k: tuple(v.shape) for k, v in self.config.input_features.items()}
         action = self.config.output_features.get("action")
         problems = [k for k in expected if provided.get(k) != expected[k]]
@@ -122,26 +202,49 @@ class LeRobotPolicy:
         self._env = env
         self.policy.reset()
         self._torch.manual_seed(seed)  # stochastic policies (Diffusion) sample the same noise for a seed
+        self._sampler = PointSampler(self.points, seed)  # the recorder draws a seed's points the same way
 
-    def _batch(self, obs) -> dict:
-        torch = self._torch
-        u = self._env.unwrapped
-        batch = {
-            "observation.state": torch.from_numpy(u.robot_state()),
-            "observation.environment_state": torch.from_numpy(u.environment_state()),
-            "task": u.task_description(),
-        }
-        for cam in u.camera_names:
-            rgb = obs["sensor_data"][cam]["rgb"]
-            batch[f"observation.images.{cam}"] = (
-                torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0
-            )
-        return {k: v for k, v in batch.items() if k == "task" or k in self.config.input_features}
+    def _batch(self, obs, env=None, sampler: PointSampler | None = None) -> dict:
+        """One observation's inputs, unbatched, as `LeRobotDataset` gave them in training (`env`, `sampler`: those
+        of the episode `obs` comes from; default: the one `reset` started)."""
+        env = self._env if env is None else env
+        inputs = self.config.input_features
+        frame = observation_frame(env, obs, self._sampler if sampler is None else sampler)
+        loaded = as_loaded({k: v for k, v in frame.items() if k in inputs}, self.depth_unit)
+        batch: dict = {k: self._torch.from_numpy(v) for k, v in loaded.items()}
+        batch["task"] = env.unwrapped.task_description()
+        return batch
 
     def act(self, obs):
         with self._torch.inference_mode():
             action = self.post(self.policy.select_action(self.pre(self._batch(obs))))
         return action.reshape(-1).cpu().numpy().astype(np.float32)
+
+    # -- batches: several episodes in lockstep, one network call a step (`evaluation.episode.evaluate_batch`) --
+    def reset_batch(self, envs: list, seeds: list[int], obs: list, infos: list[dict]) -> None:
+        """Start a batch of episodes, one per env. A stochastic policy (Diffusion) draws its noise from the batch's
+        first seed: the same batch always gets the same noise."""
+        for env in envs:
+            self.check(env)
+        self._envs = list(envs)
+        self.policy.reset()
+        self._torch.manual_seed(seeds[0])
+        self._samplers = [PointSampler(self.points, seed) for seed in seeds]
+
+    def act_batch(self, obs: list, active: list[bool]) -> np.ndarray:
+        """(batch, action): one `select_action` over every episode of the batch. Finished episodes (`active`
+        False) keep their rows, fed their last observation, so the policy's queues stay aligned with the
+        batch; their actions are dropped by the caller."""
+        torch = self._torch
+        with torch.inference_mode():
+            rows = [
+                self.pre(self._batch(o, env, sampler))
+                for o, env, sampler in zip(obs, self._envs, self._samplers, strict=True)
+            ]
+            batch = {k: torch.cat([r[k] for r in rows]) for k, v in rows[0].items() if isinstance(v, torch.Tensor)}
+            batch["task"] = [t for r in rows for t in (r["task"] if isinstance(r["task"], list) else [r["task"]])]
+            actions = self.post(self.policy.select_action(batch))
+        return actions.reshape(len(obs), -1).cpu().numpy().astype(np.float32)
 
     def action_chunk(self, obs) -> np.ndarray:
         """The (chunk, action) actions the policy predicts from `obs` alone, un-normalised, without touching what

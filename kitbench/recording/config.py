@@ -10,7 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.engine.config import ExecutorConfig
-from kitbench.envs.modes import REWARD_MODES
+from kitbench.envs.modes import IMAGE_OBS_MODES, POINTCLOUD, REWARD_MODES
+from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
 from kitbench.recording.noise import check_noise_scale
@@ -61,6 +62,9 @@ class RecordConfig:
     # at the end, so writing scales with the workers; 0: every episode goes to the one writer here. Not part of
     # the identity either: the merged dataset is the one a single writer makes.
     shard_episodes: int = 0
+    # Points stored per frame by obs_mode pointcloud (`observation.pointcloud.*`), sampled from the env's fused
+    # cloud with the episode's seed (kitbench.envs.pointcloud).
+    pointcloud_points: int = DEFAULT_POINTS
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
@@ -99,6 +103,8 @@ class RecordConfig:
             "robot",
         )
         identity = {k: getattr(self, k) for k in settings}
+        if self.obs_mode == POINTCLOUD:  # recordings of other modes read back without it, as before it existed
+            identity["pointcloud_points"] = self.pointcloud_points
         if self.noise_phases is not None:  # a list, as the JSON it is saved in reads back
             identity["noise_phases"] = list(self.noise_phases)
         return {**identity, "kitbench_version": kitbench.__version__}
@@ -106,7 +112,7 @@ class RecordConfig:
 
 RECIPE_KEYS = {f.name for f in dataclasses.fields(RecordConfig)}
 RECIPE_TABLE = "record"
-OBS_MODES_RECORDABLE = ("state", "rgb", "rgbd")
+OBS_MODES_RECORDABLE = ("state", *IMAGE_OBS_MODES)
 
 
 def load_recipe(path: Path, **overrides) -> RecordConfig:
@@ -133,6 +139,8 @@ def validate(config: RecordConfig) -> None:
     if config.reward_mode not in REWARD_MODES:
         raise KitbenchError(f"unknown reward_mode {config.reward_mode!r}; valid choices: {', '.join(REWARD_MODES)}")
     check_seed(config.seed)
+    if not _is_count(config.pointcloud_points):
+        raise KitbenchError(f"pointcloud_points must be a positive integer, got {config.pointcloud_points!r}")
     check_noise_scale(config.action_noise)
     _check_noise_phases(config)
     if (

@@ -38,6 +38,15 @@ def _video_encoder():
     return RGBEncoderConfig(vcodec="h264", crf=20, preset="veryfast", g=2)
 
 
+def _depth_encoder():
+    """LeRobot's lossless 12-bit HEVC depth stream, quantised as `kitbench.envs.features.DEPTH_ENCODING` says."""
+    from lerobot.configs import DepthEncoderConfig
+
+    from kitbench.envs.features import DEPTH_ENCODING
+
+    return DepthEncoderConfig(**DEPTH_ENCODING)
+
+
 def recover(root: Path) -> None:
     """Bring a folder left by a killed run back to its last commit."""
     root = Path(root)
@@ -150,7 +159,9 @@ class DatasetWriter:
             shutil.rmtree(session)
         if self.root.exists():
             _clone(self.root, session)
-            self._session = LeRobotDataset.resume(self.repo_id, root=session, rgb_encoder=_video_encoder())
+            self._session = LeRobotDataset.resume(
+                self.repo_id, root=session, rgb_encoder=_video_encoder(), depth_encoder=_depth_encoder()
+            )
         else:
             self._session = LeRobotDataset.create(
                 self.repo_id,
@@ -160,6 +171,7 @@ class DatasetWriter:
                 robot_type=self.robot_type,
                 use_videos=True,
                 rgb_encoder=_video_encoder(),
+                depth_encoder=_depth_encoder(),
             )
         self._session_started = time.monotonic()
 

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from kitbench.envs.features import POSE_NAMES, action_feature, observation_features, vector
+from kitbench.envs.pointcloud import DEFAULT_POINTS
 
 
-def dataset_features(env) -> dict:
+def dataset_features(env, points: int = DEFAULT_POINTS) -> dict:
     """`observation.*` are policy inputs and `action` the policy output; the rest is bookkeeping lerobot's
     policies ignore (`commanded_ee_pose` is the controller's TCP target, base frame, for task-space training;
     `executed_action` is what the robot executed: `action` plus the noise of `--action-noise`, else equal)."""
-    features = observation_features(env)
+    features = observation_features(env, points=points)
     features["action"] = action_feature(env)
     features["executed_action"] = action_feature(env)
     features["commanded_ee_pose"] = vector(POSE_NAMES)

@@ -19,6 +19,9 @@ from typing import BinaryIO
 
 import numpy as np
 
+from kitbench.envs.features import observation_frame
+from kitbench.envs.modes import POINTCLOUD
+from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.geometry import matrix_to_quat
 from kitbench.recording.mcap_log import EpisodeMcap
 from kitbench.recording.noise import ActionNoise
@@ -67,29 +70,26 @@ def _world_frames(u, bodies: list[Body], obs) -> dict[str, tuple[np.ndarray, np.
     return frames
 
 
-def _camera_images(u, obs) -> dict[str, np.ndarray]:
-    """Each camera's RGB image in `obs` (none for state observations)."""
-    return {c: obs["sensor_data"][c]["rgb"] for c in u.camera_names}
-
-
 def _log_scene(log: EpisodeMcap, u, obs) -> list[Body]:
     """At time 0: the geometry of the scene this episode built, and each camera's calibration."""
     bodies = scene_bodies(u.scene)
     log.log_scene(0, scene_update(bodies))
-    for c in u.camera_names:
-        height, width = obs["sensor_data"][c]["rgb"].shape[:2]
-        log.log_calibration(0, c, obs["sensor_param"][c]["intrinsic_cv"], width, height)
+    for spec in u.camera_specs():
+        if spec.name in u.camera_names:
+            log.log_calibration(0, spec.name, obs["sensor_param"][spec.name]["intrinsic_cv"], spec.width, spec.height)
     return bodies
 
 
 def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, bodies: list[Body], obs) -> None:
+    sensed = obs if isinstance(obs, dict) else {}  # state observations are a flat vector
     log.log_state(
         t_ns,
         frames=_world_frames(u, bodies, obs),
         joint_names=joint_names,
         qpos=u.robot.qpos(),
         qvel=u.robot.qvel(),
-        images=_camera_images(u, obs),
+        cameras=sensed.get("sensor_data", {}),
+        pointcloud=sensed.get("pointcloud"),
     )
 
 
@@ -101,27 +101,29 @@ def run_episode(
     action_noise: float = 0.0,
     settle_steps: int = 0,
     noise_phases: tuple[str, ...] | None = None,
+    points: int = DEFAULT_POINTS,
 ) -> EpisodeRecord:
-    """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given."""
+    """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given. `points`: the
+    point cloud's size per frame (obs_mode pointcloud), drawn with the episode's seed."""
     u = env.unwrapped
     obs, info = env.reset(seed=seed)
     policy.reset(env, seed, obs, info)
     noise = ActionNoise.for_env(env, action_noise, seed) if action_noise > 0 else None
     record = EpisodeRecord(seed=seed, task=u.task_description(), config=task_config(u))
-    log = EpisodeMcap(mcap, u.camera_names) if mcap is not None else None
+    log = None
+    if mcap is not None:
+        pointcloud = u.obs_mode == POINTCLOUD  # its cameras' textures travel in the cloud, not as images
+        textures = frozenset() if pointcloud else u.camera_textures
+        ids = u.segmentation_id_map if "segmentation" in textures else None
+        log = EpisodeMcap(mcap, u.camera_names, textures, ids, pointcloud)
+    sampler = PointSampler(points, seed)
     joint_names = [j.name for j in u.robot.articulation.active_joints]
     dt_ns = round(1e9 * u.control_timestep)
     try:
         bodies = _log_scene(log, u, obs) if log is not None else []
         step = 0
         while True:
-            frame = {
-                "observation.state": u.robot_state(),
-                "observation.environment_state": u.environment_state(),
-            }
-            images = _camera_images(u, obs)
-            for c, rgb in images.items():
-                frame[f"observation.images.{c}"] = rgb
+            frame = observation_frame(env, obs, sampler)
             if log is not None:
                 _log_state(log, u, step * dt_ns, joint_names, bodies, obs)
             action = np.clip(np.asarray(policy.act(obs), dtype=np.float32), u.action_space.low, u.action_space.high)

@@ -41,6 +41,7 @@ class RecordWork(Work):
             action_noise=self.config.action_noise,
             noise_phases=self.config.noise_phases,
             settle_steps=self.config.settle_steps,
+            points=self.config.pointcloud_points,
         )
         return episode, None if log is None else log.getvalue()
 

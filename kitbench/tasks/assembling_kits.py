@@ -242,6 +242,12 @@ class AssemblingKitsEnv(TabletopEnv):
         self.goal_pos, self.goal_rot = self.episodes.goal_pose(episode_index)
         self.floor = floor
 
+    def segmentation_names(self) -> tuple[str, ...]:
+        """The kit, the loose shape, and one seated shape per slot of the episode file's largest kit (a seated shape
+        is labelled by its slot: `in_place_<slot>`)."""
+        slots = max(len(e.slots) for e in self.episodes)
+        return ("kit", "obj_to_place", *(f"in_place_{i}" for i in range(slots)))
+
     def _board(self, index: int):
         """Board geometry takes 10-30 ms to build: keep the most recent ones (bounded, so memory stays flat)."""
         if index in self._boards:

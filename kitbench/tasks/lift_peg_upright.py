@@ -87,6 +87,9 @@ class LiftPegUprightEnv(TabletopEnv):
     def target_object(self):
         return self.peg
 
+    def segmentation_names(self) -> tuple[str, ...]:
+        return ("peg",)
+
     def failure_category(self, info: dict, grasp: GraspHistory) -> str | None:
         """Stages: grasp, keep holding, turn upright, set at the right height."""
         if info["success"]:

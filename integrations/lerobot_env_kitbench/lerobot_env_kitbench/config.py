@@ -14,22 +14,23 @@ from lerobot.envs.configs import EnvConfig
 
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, STATE, action_feature, observation_features
-from kitbench.errors import check_choice
+from kitbench.envs.pointcloud import DEFAULT_POINTS
+from kitbench.errors import KitbenchError, check_choice
 from kitbench.perturbations import Perturbations
 from kitbench.registration import TASKS, make_env
-from lerobot_env_kitbench.env import OBS_TYPES, register_lerobot_envs
+from lerobot_env_kitbench.env import OBS_TYPES, OBSERVATION, obs_mode_of, register_lerobot_envs
 
 # env observation key -> (dataset feature name, LeRobot feature type)
 _STATE_KEYS = {"agent_pos": (STATE, FeatureType.STATE), "environment_state": (ENVIRONMENT_STATE, FeatureType.ENV)}
 
 
 @lru_cache(maxsize=16)
-def _env_features(task: str, control_mode: str, robot: str | None) -> tuple[dict, dict]:
-    """The task's observation features (cameras included) and action feature, read off a state-only env: the
-    env is the one place they are defined, and a state env needs no renderer."""
+def _env_features(task: str, control_mode: str, robot: str | None, obs_mode: str, points: int) -> tuple[dict, dict]:
+    """The task's observation features in `obs_mode` and its action feature, read off a state-only env: the env
+    is the one place they are defined, and a state env needs no renderer."""
     env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
     try:
-        return observation_features(env, images=True), action_feature(env)
+        return observation_features(env, obs_mode, points), action_feature(env)
     finally:
         env.close()
 
@@ -40,7 +41,9 @@ class KitbenchEnvConfig(EnvConfig):
     """A kitbench task (`--env.task`, e.g. LiftPegUpright-v1) with LeRobot's observation names.
 
     `obs_type` "state" gives `agent_pos` (observation.state) and `environment_state`
-    (observation.environment_state); "pixels_state" adds each camera's image (observation.images.<camera>).
+    (observation.environment_state); "pixels_state" adds each camera's image (observation.images.<camera>); any
+    kitbench camera obs mode (rgbd, depth, segmentation, '+'-joined) or pointcloud adds what a dataset recorded in
+    that mode holds, under the same names.
     `control_mode` must be the one the training dataset was recorded in.
 
     The comment above each field is its `--help` text (draccus reads comments, not this docstring).
@@ -50,8 +53,13 @@ class KitbenchEnvConfig(EnvConfig):
     task: str | None = "LiftPegUpright-v1"
     # Control steps per second (20: the tasks' control frequency).
     fps: int = 20
-    # "state" (observation.state, observation.environment_state) or "pixels_state" (adds the cameras).
+    # "state" (observation.state, observation.environment_state), "pixels_state" (adds the cameras' images), or
+    # the obs mode the dataset was recorded in: rgbd, depth, segmentation, rgb+segmentation, ..., pointcloud.
     obs_type: str = "state"
+    # obs_type pointcloud: points per frame, as the dataset stores them (its recording's pointcloud_points).
+    pointcloud_points: int = DEFAULT_POINTS
+    # The unit depth images were trained in: lerobot-train's --dataset.depth_output_unit ("mm", its default, or "m").
+    depth_unit: str = "mm"
     # Action space; must be the one the training dataset was recorded in (its meta/kitbench_recording.json).
     control_mode: str = "pd_joint_delta_pos"
     # The robot the policy was trained on (its dataset's meta/kitbench_recording.json); default: the task's first.
@@ -72,20 +80,30 @@ class KitbenchEnvConfig(EnvConfig):
         check_choice("task", self.task, tuple(TASKS))
         check_choice("obs_type", self.obs_type, OBS_TYPES)
         check_choice("control_mode", self.control_mode, CONTROL_MODES)
+        check_choice("depth_unit", self.depth_unit, ("mm", "m"))
+        points = self.pointcloud_points
+        if isinstance(points, bool) or not isinstance(points, int) or points < 1:
+            raise KitbenchError(f"pointcloud_points must be a positive integer, got {points!r}")
         Perturbations(self.perturbations)  # refuses unknown names and levels out of range here, in one line
         register_lerobot_envs()  # tasks registered after this package was imported get their gym ids too
-        observations, action = _env_features(self.task, self.control_mode, self.robot)
+        obs_mode = "state" if self.obs_type == "state" else obs_mode_of(self.obs_type)
+        observations, action = _env_features(self.task, self.control_mode, self.robot, obs_mode, points)
         self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=tuple(action["shape"]))}
         self.features_map = {"action": "action"}
         for key, (name, kind) in _STATE_KEYS.items():
             self.features[key] = PolicyFeature(type=kind, shape=tuple(observations[name]["shape"]))
             self.features_map[key] = name
-        if self.obs_type == "pixels_state":
-            for name, feature in observations.items():
-                if name.startswith(IMAGES):
-                    key = f"pixels/{name[len(IMAGES) :]}"
-                    self.features[key] = PolicyFeature(type=FeatureType.VISUAL, shape=tuple(feature["shape"]))
-                    self.features_map[key] = name
+        for name, feature in observations.items():
+            if name in (STATE, ENVIRONMENT_STATE):
+                continue
+            shape = tuple(feature["shape"])
+            if name.startswith(IMAGES) and shape[-1] == 3:  # rgb: lerobot's own `pixels`
+                key, kind = f"pixels/{name[len(IMAGES) :]}", FeatureType.VISUAL
+            else:
+                key = name[len(OBSERVATION) :]
+                kind = FeatureType.VISUAL if name.startswith(IMAGES) else FeatureType.STATE
+            self.features[key] = PolicyFeature(type=kind, shape=shape)
+            self.features_map[key] = name
 
     @property
     def gym_kwargs(self) -> dict:
@@ -98,4 +116,8 @@ class KitbenchEnvConfig(EnvConfig):
             kwargs["perturbations"] = dict(self.perturbations)
         if self.robot is not None:
             kwargs["robot_uids"] = self.robot
+        if self.obs_type == "pointcloud":
+            kwargs["pointcloud_points"] = self.pointcloud_points
+        if obs_mode_of(self.obs_type) not in ("state", "rgb"):
+            kwargs["depth_unit"] = self.depth_unit
         return kwargs

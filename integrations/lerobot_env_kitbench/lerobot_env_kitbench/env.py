@@ -3,7 +3,10 @@
 lerobot's eval loop reads observations named `agent_pos`, `environment_state` and `pixels` ({camera: HxWx3
 uint8}) and success from `info["is_success"]`; it maps them to the dataset names kitbench's recorder writes
 (`observation.state`, `observation.environment_state`, `observation.images.<camera>`), so a policy trained on
-a kitbench dataset is evaluated on the same features.
+a kitbench dataset is evaluated on the same features. Every other observation a dataset stores (depth,
+segmentation, a point cloud) travels under its dataset name less `observation.` (`images.<camera>_depth`,
+`pointcloud.xyz`, ...), which lerobot passes on as `observation.<key>`, already in the layout `LeRobotDataset`
+returns (channels first, depth in `depth_unit`), since lerobot converts only `pixels`.
 """
 
 from __future__ import annotations
@@ -14,11 +17,22 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from kitbench.envs.features import IMAGES, as_loaded, observation_frame
+from kitbench.envs.modes import IMAGE_OBS_MODES
+from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.errors import check_choice
 from kitbench.registration import TASKS, make_env
 
 GYM_NAMESPACE = "gym_kitbench"
-OBS_TYPES = ("state", "pixels_state")
+# "pixels_state" (LeRobot's name) is kitbench's rgb; the others are kitbench's obs modes by name.
+OBS_TYPES = ("state", "pixels_state", *IMAGE_OBS_MODES)
+OBSERVATION = "observation."
+STATE_KEYS = {"observation.state": "agent_pos", "observation.environment_state": "environment_state"}
+
+
+def obs_mode_of(obs_type: str) -> str:
+    """The kitbench obs mode behind a LeRobot obs_type."""
+    return "rgb" if obs_type == "pixels_state" else obs_type
 
 
 class LeRobotKitbenchEnv(gym.Env):
@@ -35,9 +49,15 @@ class LeRobotKitbenchEnv(gym.Env):
         render_mode: str | None = "rgb_array",
         perturbations: dict | None = None,
         robot_uids: str | None = None,
+        pointcloud_points: int = DEFAULT_POINTS,
+        depth_unit: str = "mm",
     ):
         check_choice("obs_type", obs_type, OBS_TYPES)
-        obs_mode = "rgb" if obs_type == "pixels_state" else "state_dict"
+        check_choice("depth_unit", depth_unit, ("mm", "m"))
+        obs_mode = "state_dict" if obs_type == "state" else obs_mode_of(obs_type)
+        self._points = pointcloud_points
+        self._depth_unit = depth_unit
+        self._sampler = PointSampler(pointcloud_points, 0)
         self._env = make_env(
             task,
             obs_mode=obs_mode,
@@ -54,18 +74,32 @@ class LeRobotKitbenchEnv(gym.Env):
 
     @staticmethod
     def _space(obs: dict) -> spaces.Dict:
-        out: dict[str, spaces.Space] = {
-            "agent_pos": spaces.Box(-np.inf, np.inf, obs["agent_pos"].shape, np.float32),
-            "environment_state": spaces.Box(-np.inf, np.inf, obs["environment_state"].shape, np.float32),
-        }
-        if "pixels" in obs:
-            out["pixels"] = spaces.Dict({c: spaces.Box(0, 255, im.shape, np.uint8) for c, im in obs["pixels"].items()})
+        out: dict[str, spaces.Space] = {}
+        for key, value in obs.items():
+            if key == "pixels":
+                out[key] = spaces.Dict({c: spaces.Box(0, 255, im.shape, np.uint8) for c, im in value.items()})
+            else:
+                out[key] = spaces.Box(-np.inf, np.inf, value.shape, value.dtype)
         return spaces.Dict(out)
 
     def _convert(self, obs) -> dict:
-        out = {"agent_pos": self._env.robot_state(), "environment_state": self._env.environment_state()}
-        if self._env.camera_names:
-            out["pixels"] = {c: obs["sensor_data"][c]["rgb"] for c in self._env.camera_names}
+        """The dataset's frame (`observation_frame`) under lerobot's env keys: rgb images under `pixels` as they
+        are (lerobot converts them), everything else as `LeRobotDataset` returns it."""
+        frame = observation_frame(self._env, obs, self._sampler)
+        out: dict = {}
+        pixels = {}
+        rest = {}
+        for name, value in frame.items():
+            if name in STATE_KEYS:
+                out[STATE_KEYS[name]] = value
+            elif name.startswith(IMAGES) and value.shape[-1] == 3:
+                pixels[name[len(IMAGES) :]] = value
+            else:
+                rest[name] = value
+        if pixels:
+            out["pixels"] = pixels
+        for name, value in as_loaded(rest, self._depth_unit).items():
+            out[name[len(OBSERVATION) :]] = value.astype(np.float32)
         return out
 
     @property
@@ -81,6 +115,8 @@ class LeRobotKitbenchEnv(gym.Env):
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         obs, info = self._env.reset(seed=seed, options=options)
+        # a seed's points are drawn as the recorder drew them (None: from the env's own draw of a seed)
+        self._sampler = PointSampler(self._points, seed if seed is not None else int(self.np_random.integers(2**31)))
         return self._convert(obs), {**info, "is_success": bool(info["success"])}
 
     def step(self, action):

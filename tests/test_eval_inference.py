@@ -1,0 +1,238 @@
+"""How `kitbench eval` runs a trained policy: `--batch-size N` (episodes in lockstep, one policy call a step for the
+batch), `--device`, and `--policy-option KEY=VALUE` (a checkpoint's inference settings for one run).
+
+Batching never changes which seeds run or how a policy that acts one env at a time scores (bit for bit). A trained
+network's batched actions equal its unbatched ones to float32 rounding (matrix kernels sum in another order for
+another batch size: measured at most 8e-7 of a normalised action on a small ACT), which contact dynamics may carry
+into the return (2.6% on one AssemblingKits seed over 200 steps); outcomes and lengths stay the same here."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from kitbench.errors import KitbenchError
+from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.suite import adhoc_suite
+from kitbench.recording.recorder import RecordConfig, record
+from tests.lerobot_cli import BIN, OFFLINE, lerobot_train, small_config
+
+SEEDS = 5
+CASES = [
+    ("LiftPegUpright-v1", "state", "act"),
+    ("LiftPegUpright-v1", "rgb", "act"),
+    ("AssemblingKits-v1", "state", "act"),
+    ("AssemblingKits-v1", "rgb", "act"),
+    ("LiftPegUpright-v1", "state", "diffusion"),
+]
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory):
+    """A few training steps of a small policy per case, on two expert demonstrations: enough for a deterministic
+    network whose actions differ from seed to seed."""
+    base = tmp_path_factory.mktemp("batch")
+    data, out = {}, {}
+    for task, obs_mode, policy in CASES:
+        key = (task, obs_mode)
+        if key not in data:
+            root = base / f"{task}_{obs_mode}"
+            record(
+                RecordConfig(task, 2, root, obs_mode=obs_mode, control_mode="pd_ee_delta_pose", mcap=False),
+                progress=False,
+            )
+            data[key] = root
+        root = data[key]
+        info = json.loads((root / "meta/info.json").read_text())["features"]
+        inputs = [n for n in info if n.startswith("observation.")]
+        where = base / f"{task}_{obs_mode}_{policy}"
+        where.mkdir()
+        lerobot_train(small_config(root, where, inputs, policy, steps=4), root, where / "train", where)
+        out[task, obs_mode, policy] = where / "train"
+    return out
+
+
+def _eval(task, obs_mode, policy, out, batch_size, control_mode="pd_ee_delta_pose", **kwargs):
+    suite = adhoc_suite(task, SEEDS, 1_000_000, obs_mode=obs_mode, control_mode=control_mode)
+    return run_eval(EvalConfig(suite, policy, out, batch_size=batch_size, device="cpu", **kwargs), progress=False)
+
+
+def _without_timing(report: dict) -> dict:
+    return {k: v for k, v in report.items() if k not in ("timing", "output")}
+
+
+def test_batches_of_policies_that_act_alone_score_exactly_as_unbatched(tmp_path):
+    one = _eval("LiftPegUpright-v1", "state", "expert", tmp_path / "b1", 1, "pd_joint_delta_pos")
+    for size in (2, 3, 8):  # a last batch shorter than the others; a batch larger than the suite
+        batched = _eval("LiftPegUpright-v1", "state", "expert", tmp_path / f"b{size}", size, "pd_joint_delta_pos")
+        assert _without_timing(batched) == _without_timing(one), size
+        assert batched["timing"]["batch_size"] == size and batched["timing"]["device"] == "cpu"
+    # the expert's episodes end at different steps, at success: finished episodes wait for their batch
+    assert one["success"]["rate"] == 1.0 and len({e["length"] for e in one["per_episode"]}) > 1
+
+
+@pytest.mark.parametrize(("task", "obs_mode", "policy"), CASES, ids=["-".join(c) for c in CASES])
+def test_a_batched_network_scores_each_episode_as_unbatched(
+    checkpoints, needs_vulkan, task, obs_mode, policy, tmp_path
+):
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+
+    checkpoint = checkpoints[task, obs_mode, policy]
+    spec = f"lerobot:{checkpoint}"
+    one = _eval(task, obs_mode, spec, tmp_path / "b1", 1)
+    three = _eval(task, obs_mode, spec, tmp_path / "b3", 3)
+    assert [e["seed"] for e in three["per_episode"]] == [e["seed"] for e in one["per_episode"]]
+    for a, b in zip(three["per_episode"], one["per_episode"], strict=True):
+        assert (a["success"], a["failure"], a["length"]) == (b["success"], b["failure"], b["length"]), a["seed"]
+    # Returns are not compared: float32 rounding in the batched kernels (below 1e-6 of an action) grows through
+    # contacts into the return's later digits (2.6% on one AssemblingKits seed over 200 steps, outcome unchanged).
+    if policy == "diffusion":  # seeded by its batch's first seed: the same command, the same report
+        again = _eval(task, obs_mode, spec, tmp_path / "b3again", 3)
+        assert _without_timing(again) == _without_timing(three)
+
+    # each row of a batched call is that episode's own action: rows are not mixed up, whatever the batch
+    seeds = [1_000_000 + i for i in range(3)]
+    envs = [gym.make(f"kitbench/{task}", obs_mode=obs_mode, control_mode="pd_ee_delta_pose") for _ in seeds]
+    resets = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
+    alone = []
+    for env, seed, (obs, info) in zip(envs, seeds, resets, strict=True):
+        single = LeRobotPolicy(str(checkpoint))
+        single.reset(env, seed, obs, info)
+        alone.append(single.act(obs))
+    batch = LeRobotPolicy(str(checkpoint))
+    batch.reset_batch(envs, seeds, [o for o, _ in resets], [i for _, i in resets])
+    actions = batch.act_batch([o for o, _ in resets], [True] * 3)
+    if policy == "act":
+        np.testing.assert_allclose(actions, np.stack(alone), atol=1e-4)
+        assert np.abs(actions[0] - actions[1]).max() > 1e-3  # different observations, different actions
+    else:
+        assert actions.shape == (3, *envs[0].action_space.shape) and np.isfinite(actions).all()
+    for env in envs:
+        env.close()
+
+
+def test_cuda_without_cuda_is_refused_in_one_line_and_nothing_is_written(tmp_path):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    out = tmp_path / "report"
+    run = subprocess.run(
+        [
+            str(BIN / "kitbench"),
+            *("eval", "--task", "LiftPegUpright-v1", "--episodes", "2", "--device", "cuda", "--out", str(out)),
+        ],
+        capture_output=True,
+        text=True,
+        env=OFFLINE,
+        timeout=300,
+    )
+    assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert (
+        "device 'cuda'" in run.stderr
+        and "sees no CUDA device" in run.stderr
+        and "valid choices: auto, cpu" in run.stderr
+    )
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "needle"),
+    [
+        ("batch_size", 0, "batch_size must be a positive integer, got 0"),
+        ("batch_size", True, "batch_size must be a positive integer, got True"),
+        ("device", "tpu", "unknown device 'tpu'; valid choices: auto, cpu, cuda"),
+    ],
+)
+def test_bad_batch_settings_are_refused_before_anything_is_written(tmp_path, field, value, needle):
+    suite = adhoc_suite("LiftPegUpright-v1", 2, 0)
+    config = dataclasses.replace(EvalConfig(suite, "zero", tmp_path / "report"), **{field: value})
+    with pytest.raises(KitbenchError) as error:
+        run_eval(config, progress=False)
+    assert needle in str(error.value)
+    assert not (tmp_path / "report").exists()
+
+
+def test_the_lerobot_plugin_still_batches_its_envs(tmp_path):
+    """`lerobot-eval --env.type=kitbench --eval.batch_size N` runs its own batch: unchanged by kitbench's."""
+    from lerobot.envs.factory import make_env
+
+    from lerobot_env_kitbench import KitbenchEnvConfig
+
+    envs = make_env(KitbenchEnvConfig(task="LiftPegUpright-v1"), n_envs=3)["kitbench"][0]
+    try:
+        obs, _ = envs.reset(seed=[0, 1, 2])
+        assert obs["agent_pos"].shape == (3, 8)
+    finally:
+        envs.close()
+
+
+def test_help_names_the_flags():
+    run = subprocess.run([str(BIN / "kitbench"), "eval", "--help"], capture_output=True, text=True, timeout=120)
+    assert "--batch-size" in run.stdout and "--device" in run.stdout
+
+
+def test_policy_options_change_inference_and_are_reported(checkpoints, tmp_path):
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+
+    checkpoint = checkpoints["LiftPegUpright-v1", "state", "act"]
+    env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_ee_delta_pose")
+
+    def actions(options):
+        policy = LeRobotPolicy(str(checkpoint), options=options)
+        obs, info = env.reset(seed=7)
+        policy.reset(env, 7, obs, info)
+        return np.stack([policy.act(obs) for _ in range(4)])  # one observation, four steps: the env stands still
+
+    plain = actions({})
+    ensembled = actions({"temporal_ensemble_coeff": 0.01, "n_action_steps": 1})
+    np.testing.assert_allclose(plain[0], ensembled[0], atol=1e-5)  # the first step has one chunk to average
+    assert np.abs(plain[1:] - ensembled[1:]).max() > 1e-4  # later steps average the chunks predicted since
+    env.close()
+
+    spec = f"lerobot:{checkpoint}"
+    suite = adhoc_suite("LiftPegUpright-v1", 2, 0, control_mode="pd_ee_delta_pose")
+    options = (("temporal_ensemble_coeff", 0.01), ("n_action_steps", 1))
+    report = run_eval(EvalConfig(suite, spec, tmp_path / "r", device="cpu", policy_options=options), progress=False)
+    assert report["policy_options"] == {"temporal_ensemble_coeff": 0.01, "n_action_steps": 1}
+    assert "`temporal_ensemble_coeff=0.01`" in (tmp_path / "r" / "report.md").read_text()
+    assert "policy_options" not in _eval("LiftPegUpright-v1", "state", spec, tmp_path / "plain", 1)
+
+
+@pytest.mark.parametrize(
+    ("option", "needle"),
+    [
+        ("temporal_ensemble_coef=0.01", "policy option 'temporal_ensemble_coef': the act policy has no such setting"),
+        ("temporal_ensemble_coeff=0.01", "n_action_steps` must be 1 when using temporal ensembling"),
+        ("n_action_steps", "policy option 'n_action_steps' is not KEY=VALUE"),
+    ],
+)
+def test_a_bad_policy_option_is_refused_before_any_episode_runs(checkpoints, tmp_path, option, needle):
+    out = tmp_path / "report"
+    run = subprocess.run(
+        [
+            str(BIN / "kitbench"),
+            *("eval", "--task", "LiftPegUpright-v1", "--episodes", "2", "--control-mode", "pd_ee_delta_pose"),
+            *("--policy", f"lerobot:{checkpoints['LiftPegUpright-v1', 'state', 'act']}", "--policy-option", option),
+            *("--out", str(out)),
+        ],
+        capture_output=True,
+        text=True,
+        env=OFFLINE,
+        timeout=300,
+    )
+    assert run.returncode == 2 and run.stderr.count("\n") == 1 and needle in run.stderr, run.stderr
+    assert not out.exists()
+
+
+def test_policy_options_need_a_policy_with_settings(tmp_path):
+    suite = adhoc_suite("LiftPegUpright-v1", 2, 0)
+    config = EvalConfig(suite, "expert", tmp_path / "r", policy_options=(("n_action_steps", 1),))
+    with pytest.raises(KitbenchError, match="need a lerobot:<checkpoint> policy; 'expert' has no settings"):
+        run_eval(config, progress=False)
+    assert not (tmp_path / "r").exists()
