@@ -48,6 +48,7 @@ def _record(args) -> int:
         "seed": args.seed,
         "obs_mode": args.obs_mode,
         "pointcloud_points": args.pointcloud_points,
+        "label": args.label,
         "control_mode": args.control_mode,
         "policy": args.policy,
         "only_success": args.only_success or None,
@@ -260,7 +261,16 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument(
         "--robot", help="one of the task's robots (default: its first, e.g. panda; or fetch); stored with the recording"
     )
-    rec.add_argument("--policy", help="expert (default), random or zero")
+    rec.add_argument(
+        "--policy",
+        help="expert (default), random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint> (its rollouts; "
+        "with --only-success its successes)",
+    )
+    rec.add_argument(
+        "--label",
+        help="expert: store as each frame's action what the task's expert commands from the state the policy reached "
+        "(DAgger); executed_action keeps the policy's own",
+    )
     rec.add_argument("--only-success", dest="only_success", action="store_true", help="store successful episodes only")
     rec.add_argument(
         "--workers",

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from kitbench.engine.config import ExecutorConfig
-from kitbench.envs.modes import IMAGE_OBS_MODES, POINTCLOUD, REWARD_MODES
+from kitbench.envs.modes import IMAGE_OBS_MODES, POINTCLOUD, REWARD_MODES, camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
@@ -65,6 +65,9 @@ class RecordConfig:
     # Points stored per frame by obs_mode pointcloud (`observation.pointcloud.*`), sampled from the env's fused
     # cloud with the episode's seed (kitbench.envs.pointcloud).
     pointcloud_points: int = DEFAULT_POINTS
+    # Who labels each frame's `action`: None, the policy that acts; "expert", the task's expert, asked at every
+    # state the policy reaches (DAgger), while `executed_action` keeps what the policy did.
+    label: str | None = None
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
@@ -105,6 +108,8 @@ class RecordConfig:
         identity = {k: getattr(self, k) for k in settings}
         if self.obs_mode == POINTCLOUD:  # recordings of other modes read back without it, as before it existed
             identity["pointcloud_points"] = self.pointcloud_points
+        if self.label is not None:  # likewise: a recording without labels reads back None
+            identity["label"] = self.label
         if self.noise_phases is not None:  # a list, as the JSON it is saved in reads back
             identity["noise_phases"] = list(self.noise_phases)
         return {**identity, "kitbench_version": kitbench.__version__}
@@ -139,6 +144,7 @@ def validate(config: RecordConfig) -> None:
     if config.reward_mode not in REWARD_MODES:
         raise KitbenchError(f"unknown reward_mode {config.reward_mode!r}; valid choices: {', '.join(REWARD_MODES)}")
     check_seed(config.seed)
+    _check_label(config)
     if not _is_count(config.pointcloud_points):
         raise KitbenchError(f"pointcloud_points must be a positive integer, got {config.pointcloud_points!r}")
     check_noise_scale(config.action_noise)
@@ -181,13 +187,46 @@ def validate(config: RecordConfig) -> None:
         from kitbench.policies.registry import make_policy
 
         policy = make_policy(config.policy)
-        if config.policy == "expert":
+        if config.policy == "expert" or config.label == "expert":
             from kitbench.policies.expert import check_has_expert
 
             check_has_expert(env)
+        _check_policy_fits(config, policy, env)
         del policy
     finally:
         env.close()
+
+
+LABELS = ("expert",)
+
+
+def _check_label(config: RecordConfig) -> None:
+    if config.label is None:
+        return
+    if config.label not in LABELS:
+        raise KitbenchError(f"unknown label {config.label!r}; valid choices: {', '.join(LABELS)}")
+    if config.policy == config.label:
+        raise KitbenchError(f"label {config.label!r} labels policy {config.policy!r} with itself; drop --label")
+
+
+def _check_policy_fits(config: RecordConfig, policy, env) -> None:
+    """A trained policy records in the modes and on the robot it was trained for (`requirements()`), asked for
+    explicitly: a dataset's settings are the command's, never silently the checkpoint's. Then its own check on
+    the env (inputs and action size)."""
+    needs = policy.requirements() if hasattr(policy, "requirements") else {}
+    u = env.unwrapped
+    asked = {"control_mode": config.control_mode, "robot": u.robot_uid, "obs_mode": config.obs_mode}
+    flags = {"control_mode": "--control-mode", "robot": "--robot", "obs_mode": "--obs-mode"}
+    for key, value in needs.items():
+        if key in asked and value != asked[key]:
+            if key == "obs_mode" and camera_textures(value) <= camera_textures(config.obs_mode):
+                continue  # the recording asks for more than the policy reads: it gets what it reads
+            raise KitbenchError(
+                f"policy {config.policy} needs {key} {value} (recording asks for {asked[key]}); record with "
+                f"{flags[key]} {value}"
+            )
+    if hasattr(policy, "check"):
+        policy.check(env)
 
 
 def _check_noise_phases(config: RecordConfig) -> None:

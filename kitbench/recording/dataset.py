@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.recording.card import write_card
 
 __all__ = ["EPISODES_FILE", "RECORDING_FILE", "DatasetWriter", "recover"]
 SESSION_SUFFIX = ".session"
@@ -214,6 +215,7 @@ class DatasetWriter:
         lines = [json.dumps(e) for e in self.committed_episodes(session) + self._pending]
         (session / EPISODES_FILE).write_text("\n".join(lines) + "\n")
         (session / RECORDING_FILE).write_text(json.dumps(self.recording, indent=2) + "\n")
+        write_card(session)
         retired = self.root.with_name(self.root.name + RETIRED_SUFFIX)
         if self.root.exists():
             os.replace(self.root, retired)

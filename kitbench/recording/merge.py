@@ -19,6 +19,7 @@ from pathlib import Path
 
 from kitbench.errors import KitbenchError
 from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.recording.card import write_card
 from kitbench.recording.config import check_repo_id
 from kitbench.recording.journal import journal_root
 
@@ -152,6 +153,7 @@ def merge(
             offset += len(shard.episodes)
         (staging / EPISODES_FILE).write_text("".join(json.dumps(e) + "\n" for e in episodes))
         (staging / RECORDING_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+        write_card(staging)
         retired = out.with_name(out.name + ".retired")
         if out.exists():
             os.replace(out, retired)  # the old dataset stays whole until the new one is in place

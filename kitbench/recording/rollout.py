@@ -9,6 +9,10 @@ Two options make demonstrations for learning (`kitbench record --action-noise / 
   `noise_phases` confines the noise to the steps the policy plays in those phases (its `phase` after `act`).
 - `settle_steps`: the episode goes on this many steps after its first success (the task ends an episode at
   success), so the data shows the policy holding or releasing a finished task instead of stopping mid-motion.
+
+`labeler` (`kitbench record --label expert`, DAgger): a second policy, reset on the same episode, is asked at every
+state the acting policy reaches; its answer is the frame's `action`, and `executed_action` what the acting policy
+did (plus any noise).
 """
 
 from __future__ import annotations
@@ -50,6 +54,10 @@ def commanded_tcp_pose(u) -> np.ndarray:
     if target is None:
         target = controller.kinematics.tcp_pose(controller.joint_target)
     return np.concatenate([target[:3, 3], matrix_to_quat(target[:3, :3])]).astype(np.float32)
+
+
+def _clipped(u, action) -> np.ndarray:
+    return np.clip(np.asarray(action, dtype=np.float32), u.action_space.low, u.action_space.high)
 
 
 def task_config(u) -> dict:
@@ -102,12 +110,16 @@ def run_episode(
     settle_steps: int = 0,
     noise_phases: tuple[str, ...] | None = None,
     points: int = DEFAULT_POINTS,
+    labeler=None,
 ) -> EpisodeRecord:
     """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given. `points`: the
-    point cloud's size per frame (obs_mode pointcloud), drawn with the episode's seed."""
+    point cloud's size per frame (obs_mode pointcloud), drawn with the episode's seed; `labeler`: the policy whose
+    action at each state is stored as `action` (default: `policy`'s own)."""
     u = env.unwrapped
     obs, info = env.reset(seed=seed)
     policy.reset(env, seed, obs, info)
+    if labeler is not None:
+        labeler.reset(env, seed, obs, info)
     noise = ActionNoise.for_env(env, action_noise, seed) if action_noise > 0 else None
     record = EpisodeRecord(seed=seed, task=u.task_description(), config=task_config(u))
     log = None
@@ -126,7 +138,8 @@ def run_episode(
             frame = observation_frame(env, obs, sampler)
             if log is not None:
                 _log_state(log, u, step * dt_ns, joint_names, bodies, obs)
-            action = np.clip(np.asarray(policy.act(obs), dtype=np.float32), u.action_space.low, u.action_space.high)
+            label = None if labeler is None else _clipped(u, labeler.act(obs))  # asked first: the state is untouched
+            action = _clipped(u, policy.act(obs))
             # no noise once the task is done: settling shows the finished state held, which LiftPegUpright's
             # 2 mm height tolerance does not survive at 0.01 rad of joint noise (1 of 20 episodes stayed a success)
             noisy = noise is not None and record.first_success is None
@@ -143,7 +156,7 @@ def run_episode(
                 # the task ends an episode at its first success; settling ends it settle_steps later (or when
                 # time runs out), whatever the task's state by then
                 terminated = step - record.first_success >= settle_steps
-            frame["action"] = action
+            frame["action"] = action if label is None else label
             frame["executed_action"] = executed
             frame["commanded_ee_pose"] = commanded_tcp_pose(u)
             frame["next.reward"] = np.array([reward], dtype=np.float32)

@@ -17,6 +17,7 @@ class RecordWork(Work):
         self.config = config
         self._env: Any = None
         self._policy: Any = None
+        self._labeler: Any = None
 
     def __getstate__(self) -> dict:
         return {"config": self.config}  # the settings travel, never a built env
@@ -29,6 +30,7 @@ class RecordWork(Work):
 
         self._env = make_recording_env(self.config)
         self._policy = make_policy(self.config.policy)
+        self._labeler = make_policy(self.config.label) if self.config.label else None
 
     def run(self, job: int) -> tuple[EpisodeRecord, bytes | None]:
         """Seed → (episode, its MCAP log's bytes or None)."""
@@ -42,6 +44,7 @@ class RecordWork(Work):
             noise_phases=self.config.noise_phases,
             settle_steps=self.config.settle_steps,
             points=self.config.pointcloud_points,
+            labeler=self._labeler,
         )
         return episode, None if log is None else log.getvalue()
 

@@ -1,0 +1,155 @@
+"""The dataset card (`README.md`) written with every kitbench dataset, so a dataset pushed to the Hub explains itself.
+
+Built with LeRobot's own card (`lerobot.datasets.utils.create_lerobot_dataset_card`: its YAML header, tags, template
+and `meta/info.json` section), with kitbench's description: the task and its instructions, the robot, every stored
+feature with its shape and units, the control mode, the episodes and their success, how the data was made and the
+`kitbench record` command that makes it again. Rewritten at every commit from the dataset's own files, so it always
+describes what is there.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+from pathlib import Path
+
+from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+
+CARD = "README.md"
+# What each kind of feature holds, beyond its dtype and shape (`kitbench.envs.features`).
+UNITS = {
+    "observation.state": "arm joint positions (rad), gripper opening (m), then any body joints and base pose",
+    "observation.environment_state": "object and goal poses (m; quaternions w, x, y, z) and the task's fields",
+    "action": "the policy's action in the control mode (last arm entry: gripper, -1 open, 1 closed)",
+    "executed_action": "what the robot executed: `action` plus any recording noise",
+    "commanded_ee_pose": "the controller's TCP target, base frame (m; quaternion w, x, y, z)",
+}
+
+
+def _describe(name: str, feature: dict) -> str:
+    info = feature.get("info") or {}
+    if name in UNITS:
+        return UNITS[name]
+    if info.get("is_depth_map"):
+        return "depth along the viewing axis, metres (stored within 1 mm), 0 where the pixel sees nothing"
+    if "segmentation_ids" in info:
+        where = "per point" if name.startswith("observation.pointcloud.") else "per pixel"
+        return f"segmentation id {where} (the id-to-name table is in meta/info.json)"
+    if name.startswith("observation.pointcloud."):
+        part = name.rsplit(".", 1)[-1]
+        return {"xyz": "point positions, world frame, metres", "rgb": "point colours"}.get(part, part)
+    if name.startswith("observation.images."):
+        return "camera image"
+    return ""
+
+
+def record_command(recording: dict, episodes: int) -> str:
+    """The `kitbench record` command that makes this dataset again (its settings as flags)."""
+    flags = ["kitbench", "record", "--task", recording["task"], "--episodes", str(episodes)]
+    flags += ["--seed", str(recording["seed"]), "--obs-mode", recording["obs_mode"]]
+    flags += ["--control-mode", recording["control_mode"], "--policy", recording["policy"]]
+    if recording.get("robot"):
+        flags += ["--robot", recording["robot"]]
+    if recording.get("only_success"):
+        flags.append("--only-success")
+    if recording.get("action_noise"):
+        flags += ["--action-noise", str(recording["action_noise"])]
+    if recording.get("noise_phases"):
+        flags += ["--noise-phases", ",".join(recording["noise_phases"])]
+    if recording.get("settle_steps"):
+        flags += ["--settle-steps", str(recording["settle_steps"])]
+    if recording.get("reward_mode", "dense") != "dense":
+        flags += ["--reward-mode", recording["reward_mode"]]
+    if recording.get("pointcloud_points") is not None:
+        flags += ["--pointcloud-points", str(recording["pointcloud_points"])]
+    if recording.get("label"):
+        flags += ["--label", recording["label"]]
+    return shlex.join([*flags, "--out", "<folder>"])
+
+
+def card_text(root: Path) -> str:
+    """The card of the dataset at `root` (its meta/info.json, kitbench's recording settings and episodes)."""
+    from lerobot.datasets.utils import create_lerobot_dataset_card
+
+    info = json.loads((root / "meta" / "info.json").read_text())
+    recording = json.loads((root / RECORDING_FILE).read_text())
+    lines = (root / EPISODES_FILE).read_text().splitlines() if (root / EPISODES_FILE).is_file() else []
+    episodes = [json.loads(line) for line in lines if line.strip()]
+    features = info["features"]
+    stored = [n for n in features if n.startswith("observation.") or n in UNITS]
+    successes = sum(bool(e.get("success")) for e in episodes)
+    seeds = sorted(e["seed"] for e in episodes)
+    instructions = sorted({e["task"] for e in episodes if e.get("task")})
+    robot = info.get("robot_type") or recording.get("robot") or "?"
+    table = ["| feature | dtype | shape | what |", "|---|---|---|---|"]
+    table += [
+        f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n, features[n])} |"
+        for n in stored
+    ]
+    made = [f"policy `{recording['policy']}`"]
+    if recording.get("label"):
+        made.append(f"actions labelled by `{recording['label']}` (the policy's own in `executed_action`)")
+    if recording.get("action_noise"):
+        phases = recording.get("noise_phases")
+        made.append(f"action noise {recording['action_noise']}" + (f" in phases {', '.join(phases)}" if phases else ""))
+    if recording.get("settle_steps"):
+        made.append(f"{recording['settle_steps']} steps recorded past each success")
+    if recording.get("only_success"):
+        made.append("successful episodes only")
+    seed_range = f"{seeds[0]}–{seeds[-1]}" if seeds else "–"
+    heading = (
+        f"A kitbench simulation dataset of **{recording['task']}** with the **{robot}** robot, recorded at "
+        f"{info['fps']} fps in control mode **`{recording['control_mode']}`** with observations "
+        f"**`{recording['obs_mode']}`**."
+    )
+    made.append(f"reward `{recording.get('reward_mode', 'dense')}`")
+    how = f"{', '.join(made)}; kitbench {recording.get('kitbench_version', '?')}"
+    files = (
+        "Per-episode seed, success and task configuration: `meta/kitbench_episodes.jsonl`; the recording's settings: "
+        "`meta/kitbench_recording.json`; one MCAP log per episode (Foxglove) in `mcap/` when recorded."
+    )
+    description = "\n".join(
+        [
+            heading,
+            "",
+            f"- Instructions: {'; '.join(f'“{t}”' for t in instructions) or '–'}",
+            f"- Episodes: {len(episodes)} ({info['total_frames']} frames), {successes} successful; seeds {seed_range}",
+            f"- Made by: {how}",
+            f"- Made again by: `{record_command(recording, len(episodes))}`",
+            f"- {files}",
+            "",
+            *table,
+        ]
+    )
+    modalities = sorted(
+        {
+            "depth"
+            if n.endswith("_depth")
+            else "segmentation"
+            if n.endswith("_segmentation")
+            else "pointcloud"
+            if n.startswith("observation.pointcloud.")
+            else "rgb"
+            for n in features
+            if n.startswith(("observation.images.", "observation.pointcloud."))
+        }
+    )
+    structure = f"[meta/info.json](meta/info.json):\n```json\n{json.dumps(info, indent=4)}\n```\n"
+    card = create_lerobot_dataset_card(
+        tags=["kitbench", "simulation", recording["task"], robot, *modalities],
+        license="apache-2.0",
+        repo_id=recording.get("repo_id"),
+        dataset_description=description,
+        dataset_structure=structure,
+    )
+    return str(card)
+
+
+def write_card(root: Path) -> None:
+    """Write `root`/README.md from the dataset's files. Written aside and renamed over: a session folder's README
+    is a hard link to the published one (`dataset._clone`), which must not change before the session commits."""
+    path = Path(root) / CARD
+    partial = path.with_name(f".{CARD}.partial")
+    partial.write_text(card_text(Path(root)))
+    os.replace(partial, path)
