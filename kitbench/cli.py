@@ -162,6 +162,7 @@ def eval_config_from_args(args):
         batch_size=args.batch_size,
         device=args.device,
         policy_options=tuple(parse_option(o) for o in args.policy_option or ()),
+        save_dataset=Path(args.save_dataset) if args.save_dataset else None,
     )
 
 
@@ -385,7 +386,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("--videos", type=int, default=0, help="episodes to film, failures and successes both (default 0)")
     ev.add_argument("--out", help="report folder (default outputs/eval/<task>/<policy>)")
-    ev.add_argument("--overwrite", action="store_true", help="replace an existing report in --out")
+    ev.add_argument(
+        "--overwrite", action="store_true", help="replace an existing report in --out (and --save-dataset's dataset)"
+    )
+    ev.add_argument(
+        "--save-dataset",
+        dest="save_dataset",
+        metavar="DIR",
+        help="also store the scored episodes as a LeRobot dataset in DIR (frames, actions, rewards, a dataset card)",
+    )
     ev.add_argument(
         "--obs-mode",
         dest="obs_mode",

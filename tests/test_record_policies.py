@@ -140,3 +140,55 @@ def test_bad_policy_and_label_settings_write_nothing(tmp_path, kwargs, needle):
         record(RecordConfig(TASK, 1, out, **kwargs), progress=False)
     assert needle in str(error.value) and "\n" not in str(error.value)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("policy", ["expert", "checkpoint"])
+def test_eval_saves_the_scored_episodes_as_a_dataset(checkpoint, tmp_path, policy):
+    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.suite import adhoc_suite
+
+    spec = "expert" if policy == "expert" else f"lerobot:{checkpoint}"
+    suite = adhoc_suite(TASK, 3, 500, control_mode="pd_ee_delta_pose", settle_steps=2)
+    data = tmp_path / "scored"
+    report = run_eval(EvalConfig(suite, spec, tmp_path / "report", save_dataset=data), progress=False)
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    ds = LeRobotDataset("kitbench/test", root=data)
+    assert ds.num_episodes == 3 and len(ds) == sum(e["length"] for e in report["per_episode"])
+    stored = [json.loads(line) for line in (data / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
+    for kept, scored in zip(stored, report["per_episode"], strict=True):
+        assert (kept["seed"], kept["length"]) == (scored["seed"], scored["length"])
+        assert kept["success"] == scored["success_once"]
+    settings = _settings(data)
+    assert settings["policy"] == spec and settings["seeds"] == [500, 501, 502]
+    assert "kitbench eval --task LiftPegUpright-v1 --seed 500 --episodes 3" in (data / "README.md").read_text()
+    # the stored episodes are the scored ones: their executed actions replayed from the seeds end as scored
+    columns = _columns(data)
+    for episode, scored in enumerate(report["per_episode"]):
+        env = gym.make(f"kitbench/{TASK}", control_mode="pd_ee_delta_pose")
+        env.reset(seed=scored["seed"])
+        for action in columns["executed_action"][columns["episode_index"].reshape(-1) == episode]:
+            _, _, _, _, info = env.step(action)
+        assert bool(info["success"]) == scored["success_at_end"]
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "needle"),
+    [
+        ({"batch_size": 2}, "--save-dataset records episodes one at a time; drop --batch-size 2"),
+        ({"existing": True}, "exists; pass --overwrite to replace it"),
+    ],
+)
+def test_save_dataset_refusals_write_nothing(tmp_path, kwargs, needle):
+    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.suite import adhoc_suite
+
+    data = tmp_path / "scored"
+    if kwargs.pop("existing", False):
+        data.mkdir()
+    config = EvalConfig(adhoc_suite(TASK, 2, 0), "zero", tmp_path / "report", save_dataset=data, **kwargs)
+    with pytest.raises(KitbenchError) as error:
+        run_eval(config, progress=False)
+    assert needle in str(error.value)
+    assert not (tmp_path / "report").exists() and not (data / "meta").exists()

@@ -19,7 +19,7 @@ from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.suite import Suite
-from kitbench.evaluation.work import Batch, EvalWork, Film, Trial, make_suite_env
+from kitbench.evaluation.work import Batch, EvalWork, Film, Save, Trial, make_suite_env
 
 REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
 
@@ -47,6 +47,9 @@ class EvalConfig:
     device: str = "auto"
     # A lerobot checkpoint's config fields set for this run (`--policy-option KEY=VALUE`), recorded in the report.
     policy_options: tuple[tuple[str, object], ...] = ()
+    # Where the scored (nominal) episodes go as a LeRobot dataset (`--save-dataset`); None: nowhere. A folder that
+    # exists is refused unless `overwrite`.
+    save_dataset: Path | None = None
 
 
 def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite:
@@ -129,6 +132,8 @@ def validate(config: EvalConfig):
         raise KitbenchError(f"batch_size must be a positive integer, got {size!r}")
     device = resolve_device(config.device)
     check_out_folder(Path(config.out), config.overwrite)
+    if config.save_dataset is not None:
+        _check_save_dataset(config)
     policy = make_policy(config.policy, device, dict(config.policy_options))
     suite = fit_suite_to_policy(config.suite, policy, config.explicit)
     from kitbench.doctor import require_renderer
@@ -154,7 +159,7 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     del policy
     out = Path(config.out)
     start = time.monotonic()
-    jobs = _jobs(suite, config.batch_size)
+    jobs = _jobs(suite, config.batch_size, saving=config.save_dataset is not None)
     executor = make_executor(ExecutorConfig(config.executor, config.workers, config.ray_address), len(jobs))
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
     options = dict(config.policy_options)
@@ -164,7 +169,9 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             (out / stale).unlink(missing_ok=True)
         for stale in (PLOTS_DIR, VIDEOS_DIR):
             shutil.rmtree(out / stale, ignore_errors=True)
-        results, perturbed = _score(engine, suite, jobs, progress)
+        results, perturbed, episodes = _score(engine, suite, jobs, progress)
+        if config.save_dataset is not None:
+            _write_dataset(config, suite, episodes)
         scored = time.monotonic()
         report = _write_report(suite, config.policy, results, timestep, out, perturbed, options)
         reported = time.monotonic()
@@ -198,9 +205,10 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     return report
 
 
-def _jobs(suite: Suite, batch_size: int = 1) -> list[int | Trial | Batch]:
+def _jobs(suite: Suite, batch_size: int = 1, saving: bool = False) -> list[int | Trial | Batch | Save]:
     """The nominal seeds, then every seed under each perturbation and level (`suite.conditions`): one job a seed,
-    or with `batch_size` > 1 one `Batch` per `batch_size` consecutive seeds of a condition."""
+    or with `batch_size` > 1 one `Batch` per `batch_size` consecutive seeds of a condition; `saving`: the nominal
+    seeds as `Save` jobs, whose episodes come back with their frames."""
     if batch_size > 1:
         seeds = suite.seeds
         return [
@@ -208,23 +216,24 @@ def _jobs(suite: Suite, batch_size: int = 1) -> list[int | Trial | Batch]:
             for condition in suite.conditions
             for i in range(0, len(seeds), batch_size)
         ]
-    jobs: list[int | Trial | Batch] = list(suite.seeds)
+    jobs: list[int | Trial | Batch | Save] = [Save(s) for s in suite.seeds] if saving else list(suite.seeds)
     for condition in suite.conditions[1:]:
         assert condition is not None
         jobs += [Trial(seed, *condition) for seed in suite.seeds]
     return jobs
 
 
-def _condition(job: int | Trial | Batch) -> tuple[str, float] | None:
+def _condition(job: int | Trial | Batch | Save) -> tuple[str, float] | None:
     if isinstance(job, Trial):
         return (job.perturbation, job.level)
     return job.condition if isinstance(job, Batch) else None
 
 
 def _score(
-    engine: RolloutEngine, suite: Suite, jobs: list[int | Trial | Batch], progress: bool
-) -> tuple[list[EpisodeResult], dict[tuple[str, float], list[EpisodeResult]]]:
-    """The nominal results, and the results under each (perturbation, level), in seed order."""
+    engine: RolloutEngine, suite: Suite, jobs: list[int | Trial | Batch | Save], progress: bool
+) -> tuple[list[EpisodeResult], dict[tuple[str, float], list[EpisodeResult]], list]:
+    """The nominal results, the results under each (perturbation, level), in seed order, and the episodes the `Save`
+    jobs kept."""
     bar = None
     if progress:
         from kitbench.progress import progress as progress_bar
@@ -232,8 +241,12 @@ def _score(
         bar = progress_bar(len(suite.seeds) * len(suite.conditions), f"eval {suite.task}")
     results: list[EpisodeResult] = []
     perturbed: dict[tuple[str, float], list[EpisodeResult]] = {}
+    episodes: list = []
     try:
         for job, result in zip(jobs, engine.map(jobs), strict=True):
+            if isinstance(job, Save):
+                result, episode = result
+                episodes.append(episode)
             condition = _condition(job)
             scored = result if isinstance(job, Batch) else [result]
             (results if condition is None else perturbed.setdefault(condition, [])).extend(scored)
@@ -246,7 +259,65 @@ def _score(
     finally:
         if bar is not None:
             bar.close()
-    return results, perturbed
+    return results, perturbed, episodes
+
+
+def _check_save_dataset(config: EvalConfig) -> None:
+    target = Path(config.save_dataset)  # type: ignore[arg-type]  # checked by the caller
+    if config.batch_size != 1:
+        raise KitbenchError(f"--save-dataset records episodes one at a time; drop --batch-size {config.batch_size}")
+    if target.exists() and not config.overwrite:
+        raise KitbenchError(f"dataset folder {target} exists; pass --overwrite to replace it")
+    if target.exists() and not (target / "meta" / "kitbench_recording.json").is_file():
+        raise KitbenchError(f"{target} is not a kitbench dataset; --overwrite replaces only those")
+
+
+def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
+    """The scored episodes as a LeRobot dataset (with its card), committed once: it appears whole or not at all."""
+    import shlex
+
+    import kitbench
+    from kitbench.recording.dataset import DatasetWriter, remove_recording
+    from kitbench.recording.features import dataset_features
+
+    target = Path(config.save_dataset)  # type: ignore[arg-type]  # only called with one
+    env = make_suite_env(suite)
+    try:
+        env.reset(seed=suite.seeds[0])
+        features, fps, robot = dataset_features(env), env.unwrapped.sim_config.control_freq, env.unwrapped.robot_uid
+    finally:
+        env.close()
+    flags = ["--suite", suite.source] if suite.source else ["--task", suite.task, "--seed", str(suite.seeds[0])]
+    flags += ["--episodes", str(len(suite.seeds)), "--policy", config.policy, "--obs-mode", suite.obs_mode]
+    flags += ["--control-mode", suite.control_mode, "--robot", robot, "--settle-steps", str(suite.settle_steps)]
+    for key, value in config.policy_options:
+        flags += ["--policy-option", f"{key}={value}"]
+    repo_id = f"kitbench/{suite.task}"
+    recording = {
+        "task": suite.task,
+        "seed": suite.seeds[0],
+        "seeds": list(suite.seeds),
+        "obs_mode": suite.obs_mode,
+        "control_mode": suite.control_mode,
+        "policy": config.policy,
+        "settle_steps": suite.settle_steps,
+        "reward_mode": suite.reward_mode,
+        "robot": robot,
+        "kitbench_version": kitbench.__version__,
+        "repo_id": repo_id,
+        "fps": fps,
+        "made_by": shlex.join(["kitbench", "eval", *flags, "--save-dataset", "<folder>"]),
+    }
+    if target.exists():
+        remove_recording(target)
+    writer = DatasetWriter(target, repo_id, fps, features, robot, recording)
+    try:
+        for episode in episodes:
+            writer.add_episode(episode, {})
+        writer.commit()
+    except BaseException:
+        writer.abandon()
+        raise
 
 
 def _write_report(

@@ -34,6 +34,13 @@ class Trial:
 
 
 @dataclass(frozen=True)
+class Save:
+    """Score `seed` and keep the episode's frames for a dataset (`kitbench eval --save-dataset`)."""
+
+    seed: int
+
+
+@dataclass(frozen=True)
 class Batch:
     """Score `seeds` together (under `condition`, a (perturbation, level), when given)."""
 
@@ -90,6 +97,8 @@ class EvalWork(Work):
             return self.film(job)
         if isinstance(job, Batch):
             return self.run_batch(job)
+        if isinstance(job, Save):
+            return self.save(job)
         if isinstance(job, Trial):
             condition = (job.perturbation, job.level)
             env = self._perturbed_envs.get(condition)
@@ -97,6 +106,16 @@ class EvalWork(Work):
                 env = self._perturbed_envs[condition] = make_suite_env(self.suite, perturbation=condition)
             return evaluate_episode(env, self._policy, job.seed, settle_steps=self.suite.settle_steps)
         return evaluate_episode(self._env, self._policy, job, settle_steps=self.suite.settle_steps)
+
+    def save(self, job: Save) -> tuple[EpisodeResult, Any]:
+        """(the score, the episode's `EpisodeRecord`): played by the recorder's rollout, scored as it goes, so the
+        stored episode is the scored one."""
+        from kitbench.evaluation.episode import EpisodeScore
+        from kitbench.recording.rollout import run_episode
+
+        score = EpisodeScore(self._env, job.seed, self.suite.settle_steps)
+        episode = run_episode(self._env, self._policy, job.seed, settle_steps=self.suite.settle_steps, observer=score)
+        return score.result(), episode
 
     def run_batch(self, job: Batch) -> list[EpisodeResult]:
         """The batch's seeds in lockstep, on envs kept per condition (the largest batch's worth)."""

@@ -45,7 +45,10 @@ def _describe(name: str, feature: dict) -> str:
 
 
 def record_command(recording: dict, episodes: int) -> str:
-    """The `kitbench record` command that makes this dataset again (its settings as flags)."""
+    """The command that makes this dataset again: the one it was made by when kitbench stored it (`kitbench eval
+    --save-dataset`), else `kitbench record` with its settings as flags."""
+    if recording.get("made_by"):
+        return recording["made_by"]
     flags = ["kitbench", "record", "--task", recording["task"], "--episodes", str(episodes)]
     flags += ["--seed", str(recording["seed"]), "--obs-mode", recording["obs_mode"]]
     flags += ["--control-mode", recording["control_mode"], "--policy", recording["policy"]]

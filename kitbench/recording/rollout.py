@@ -111,10 +111,12 @@ def run_episode(
     noise_phases: tuple[str, ...] | None = None,
     points: int = DEFAULT_POINTS,
     labeler=None,
+    observer=None,
 ) -> EpisodeRecord:
     """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given. `points`: the
     point cloud's size per frame (obs_mode pointcloud), drawn with the episode's seed; `labeler`: the policy whose
-    action at each state is stored as `action` (default: `policy`'s own)."""
+    action at each state is stored as `action` (default: `policy`'s own); `observer`: told every step's outcome
+    (`observer.step(reward, terminated, truncated, info)`, as `kitbench eval` scores an episode it also stores)."""
     u = env.unwrapped
     obs, info = env.reset(seed=seed)
     policy.reset(env, seed, obs, info)
@@ -150,6 +152,8 @@ def run_episode(
                 phase = getattr(policy, "phase", None) or "policy"
                 log.log_action(step * dt_ns, executed, phase, getattr(policy, "tcp_target", None))
             obs, reward, terminated, truncated, info = env.step(executed)
+            if observer is not None:
+                observer.step(reward, terminated, truncated, info)
             if info["success"] and record.first_success is None:
                 record.first_success = step
             if record.first_success is not None:
