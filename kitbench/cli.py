@@ -111,6 +111,33 @@ def _view(args) -> int:
     return 0
 
 
+def _convert(args) -> int:
+    from kitbench.recording.convert import convert_config
+    from kitbench.recording.recorder import record
+
+    settings = {
+        "obs_mode": args.obs_mode,
+        "control_mode": args.control_mode,
+        "pointcloud_points": args.pointcloud_points,
+        "workers": args.workers,
+        "executor": args.executor,
+        "ray_address": args.ray_address,
+        "resume": args.resume or None,
+        "overwrite": args.overwrite or None,
+        "mcap": args.mcap,
+        "commit_interval": args.commit_interval,
+    }
+    try:
+        config = convert_config(Path(args.source), Path(args.out), **settings)
+        summary = record(config)
+    except KitbenchError as exc:
+        print(f"kitbench convert: error: {exc}", file=sys.stderr)
+        return 2
+    for line in summary.lines(config.out):
+        print(line)
+    return summary.exit_code
+
+
 def _slug(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in text).strip("_.")[-80:] or "policy"
 
@@ -336,6 +363,27 @@ def build_parser() -> argparse.ArgumentParser:
     mrg.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     mrg.add_argument("--repo-id", dest="repo_id", help="repo id of the merged dataset (default: the shards')")
     mrg.set_defaults(func=_merge)
+    cv = sub.add_parser(
+        "convert",
+        help="re-simulate a recording from its seeds and executed actions into other observations or another "
+        "action space (a new LeRobot dataset; episodes that do not reproduce their source are reported, not stored)",
+    )
+    cv.add_argument("source", help="a kitbench recording (a LeRobot dataset kitbench recorded)")
+    cv.add_argument("--out", required=True, help="the new dataset's folder")
+    cv.add_argument("--obs-mode", dest="obs_mode", help="observations to store (default: the source's)")
+    cv.add_argument(
+        "--control-mode",
+        dest="control_mode",
+        help="action space to store (default: the source's); another one tracks the source's joint trajectory",
+    )
+    cv.add_argument("--pointcloud-points", dest="pointcloud_points", type=int, help="as kitbench record's")
+    cv.add_argument("--workers", type=int, help="simulator workers (default 1); the dataset does not depend on it")
+    _executor_flags(cv)
+    cv.add_argument("--resume", action="store_true", help="continue an interrupted conversion in --out")
+    cv.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    cv.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=None, help="write MCAP logs (default on)")
+    cv.add_argument("--commit-interval", dest="commit_interval", type=float, help="as kitbench record's (default 30)")
+    cv.set_defaults(func=_convert)
     vw = sub.add_parser("view", help="show a recorded episode in LeRobot's viewer (Rerun), or save it as .rrd")
     vw.add_argument("dataset", help="a dataset folder (LeRobot v3)")
     vw.add_argument("--episode", type=int, default=0, help="episode index (default 0)")

@@ -49,6 +49,12 @@ def record_command(recording: dict, episodes: int) -> str:
     --save-dataset`), else `kitbench record` with its settings as flags."""
     if recording.get("made_by"):
         return recording["made_by"]
+    if recording.get("source"):
+        flags = ["kitbench", "convert", recording["source"], "--obs-mode", recording["obs_mode"]]
+        flags += ["--control-mode", recording["control_mode"]]
+        if recording.get("pointcloud_points") is not None:
+            flags += ["--pointcloud-points", str(recording["pointcloud_points"])]
+        return shlex.join([*flags, "--out", "<folder>"])
     flags = ["kitbench", "record", "--task", recording["task"], "--episodes", str(episodes)]
     flags += ["--seed", str(recording["seed"]), "--obs-mode", recording["obs_mode"]]
     flags += ["--control-mode", recording["control_mode"], "--policy", recording["policy"]]
@@ -91,6 +97,8 @@ def card_text(root: Path) -> str:
         for n in stored
     ]
     made = [f"policy `{recording['policy']}`"]
+    if recording.get("source"):
+        made.append(f"converted from `{recording['source']}` (its executed actions replayed from each seed)")
     if recording.get("label"):
         made.append(f"actions labelled by `{recording['label']}` (the policy's own in `executed_action`)")
     if recording.get("action_noise"):

@@ -68,6 +68,9 @@ class RecordConfig:
     # Who labels each frame's `action`: None, the policy that acts; "expert", the task's expert, asked at every
     # state the policy reaches (DAgger), while `executed_action` keeps what the policy did.
     label: str | None = None
+    # A kitbench recording to re-simulate (`kitbench convert`): its seeds, in its order, replayed with the actions its
+    # robot executed (kitbench.recording.convert); None: the policy acts on consecutive seeds from `seed`.
+    source: Path | None = None
 
     def __post_init__(self):
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
@@ -110,6 +113,8 @@ class RecordConfig:
             identity["pointcloud_points"] = self.pointcloud_points
         if self.label is not None:  # likewise: a recording without labels reads back None
             identity["label"] = self.label
+        if self.source is not None:
+            identity["source"] = str(self.source)
         if self.noise_phases is not None:  # a list, as the JSON it is saved in reads back
             identity["noise_phases"] = list(self.noise_phases)
         return {**identity, "kitbench_version": kitbench.__version__}
@@ -182,6 +187,9 @@ def validate(config: RecordConfig) -> None:
     from kitbench.doctor import require_renderer
 
     require_renderer(config.obs_mode)
+    if config.source is not None:
+        _check_source(config)
+        return
     env = make_recording_env(config)  # raises on a bad control mode, robot or task setting
     try:
         from kitbench.policies.registry import make_policy
@@ -195,6 +203,21 @@ def validate(config: RecordConfig) -> None:
         del policy
     finally:
         env.close()
+
+
+def _check_source(config: RecordConfig) -> None:
+    """A conversion's source is a kitbench recording of this task, replayed without noise of its own."""
+    from kitbench.recording.convert import SourceRecording
+
+    source = SourceRecording(config.source)  # type: ignore[arg-type]  # only called with one
+    if source.settings["task"] != config.task:
+        raise KitbenchError(f"{config.source} records {source.settings['task']}, not {config.task}")
+    if config.action_noise or config.label is not None:
+        raise KitbenchError("a conversion replays its source's actions: no action_noise or label of its own")
+    if config.shard_episodes:
+        raise KitbenchError("a conversion runs its source's seeds on one writer: drop shard_episodes")
+    env = make_recording_env(config)  # raises on a bad obs mode, control mode or robot
+    env.close()
 
 
 LABELS = ("expert",)

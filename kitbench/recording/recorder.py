@@ -103,6 +103,15 @@ def record(config: RecordConfig, progress: bool = True, signals: bool = True) ->
         workers.close()
 
 
+def _seeds(config: RecordConfig, done: set[int], next_seed: int):
+    """The seeds still to run: consecutive from `next_seed`, or a conversion's source seeds not yet stored."""
+    if config.source is None:
+        return itertools.count(next_seed)
+    from kitbench.recording.convert import SourceRecording
+
+    return iter([s for s in SourceRecording(config.source).seeds if s not in done])
+
+
 def _record(
     config: RecordConfig,
     journal: EpisodeJournal,
@@ -153,15 +162,21 @@ def _record(
                 def needed() -> int:
                     return min(config.episodes - summary.stored, limit - summary.attempted)
 
-                for _, (episode, mcap) in engine.results(itertools.count(next_seed), needed):
+                seeds = _seeds(config, {*done_seeds, *replayed}, next_seed)
+                for _, (episode, mcap) in engine.results(seeds, needed):
                     summary.attempted += 1
                     summary.successes += int(episode.success)
                     if episode.physics_error is not None:
                         summary.physics_errors += 1
                         _say(f"seed {episode.seed}: not stored, the simulation failed: {episode.physics_error}")
-                    if episode.physics_error is not None or (config.only_success and not episode.success):
-                        summary.failures_dropped += episode.physics_error is None
-                    else:
+                    elif episode.rejected is not None:
+                        summary.rejected += 1
+                        _say(f"seed {episode.seed}: not stored, {episode.rejected}")
+                    keep = episode.physics_error is None and episode.rejected is None
+                    if keep and config.only_success and not episode.success:
+                        summary.failures_dropped += 1
+                        keep = False
+                    if keep:
                         with stops.storing():
                             mcap_path = journal.add(episode, mcap)
                             publish_episode(writer, episode, mcap_path)
@@ -189,8 +204,8 @@ def _record(
     finally:
         if bar is not None:
             bar.close()
-    if summary.stored >= config.episodes:
-        journal.remove()
+    if summary.stored >= config.episodes or (config.source is not None and not summary.interrupted):
+        journal.remove()  # a conversion is done when every source seed was tried, stored or not
     summary.seconds = time.monotonic() - start
     summary.size_bytes = folder_size(out)
     return summary

@@ -41,6 +41,7 @@ class EpisodeRecord:
     first_success: int | None = None  # step index of the first successful frame
     config: dict = field(default_factory=dict)
     physics_error: str | None = None  # the simulation failed at the last step (`info["physics_error"]`)
+    rejected: str | None = None  # why the episode is not to be stored although it ran (a conversion that diverged)
 
     @property
     def length(self) -> int:

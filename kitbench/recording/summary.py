@@ -31,6 +31,7 @@ class Summary:
     signal: int | None = None  # the signal that interrupted the run (SIGINT for Ctrl-C)
     gave_up: bool = False  # stopped at max_attempts before storing every episode
     physics_errors: int = 0  # attempts dropped because the simulation failed (info["physics_error"])
+    rejected: int = 0  # converted episodes not stored because they did not reproduce their source
 
     @property
     def exit_code(self) -> int:
@@ -57,6 +58,8 @@ class Summary:
         ]
         if self.physics_errors:
             lines.insert(2, f"not stored because the simulation failed: {self.physics_errors} attempt(s)")
+        if self.rejected:
+            lines.insert(2, f"not stored because they diverged from the source: {self.rejected} episode(s)")
         if self.interrupted:
             name = signal.Signals(self.signal or signal.SIGINT).name
             lines.insert(0, f"interrupted ({name}): every completed episode was committed; continue with --resume")

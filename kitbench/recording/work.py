@@ -29,6 +29,13 @@ class RecordWork(Work):
         from kitbench.policies.registry import make_policy
 
         self._env = make_recording_env(self.config)
+        if self.config.source is not None:
+            from kitbench.recording.convert import SourceRecording, make_replay, pose_position_columns
+
+            self._source = SourceRecording(self.config.source)
+            self._policy, self._labeler = make_replay(self._source, self.config.control_mode)
+            self._poses = pose_position_columns(self._env)
+            return
         self._policy = make_policy(self.config.policy)
         self._labeler = make_policy(self.config.label) if self.config.label else None
 
@@ -46,6 +53,10 @@ class RecordWork(Work):
             points=self.config.pointcloud_points,
             labeler=self._labeler,
         )
+        if self.config.source is not None:
+            from kitbench.recording.convert import divergence
+
+            episode.rejected = divergence(self._source, episode, self._poses)
         return episode, None if log is None else log.getvalue()
 
     def close(self) -> None:
