@@ -4,10 +4,8 @@ another action space, each episode checked against its source, with the recorder
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +13,7 @@ import pytest
 
 from kitbench.recording.convert import convert_config
 from kitbench.recording.recorder import RecordConfig, record
+from tests.processes import kill_once_committed
 from tests.test_recording import _columns, _load
 
 TASK = "LiftPegUpright-v1"
@@ -106,15 +105,7 @@ def test_kill_minus_nine_loses_at_most_the_episode_in_flight_and_resume_finishes
     out, reference = tmp_path / "killed", tmp_path / "reference"
     cmd = [sys.executable, "-m", "kitbench.cli", "convert", str(source), "--control-mode", "pd_joint_pos"]
     cmd += ["--no-mcap", "--commit-interval", "0"]
-    proc = subprocess.Popen([*cmd, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline:
-        jsonl = out / "meta/kitbench_episodes.jsonl"
-        if jsonl.is_file() and len(jsonl.read_text().splitlines()) >= 2:
-            break
-        time.sleep(0.1)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    kill_once_committed([*cmd, "--out", str(out)], out)
     kept = _load(out).num_episodes
     assert 2 <= kept < 6
     subprocess.run([*cmd, "--out", str(out), "--resume"], check=True, capture_output=True, timeout=600)

@@ -62,6 +62,12 @@ def _eval(task, obs_mode, policy, out, batch_size, control_mode="pd_ee_delta_pos
     return run_eval(EvalConfig(suite, policy, out, batch_size=batch_size, device="cpu", **kwargs), progress=False)
 
 
+def _kitbench_eval(*args: str) -> subprocess.CompletedProcess:
+    """`kitbench eval --task LiftPegUpright-v1 <args>`, offline, as a user runs it."""
+    cmd = [str(BIN / "kitbench"), "eval", "--task", "LiftPegUpright-v1", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=300)
+
+
 def _without_timing(report: dict) -> dict:
     return {k: v for k, v in report.items() if k not in ("timing", "output")}
 
@@ -122,16 +128,7 @@ def test_cuda_without_cuda_is_refused_in_one_line_and_nothing_is_written(tmp_pat
     if torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
     out = tmp_path / "report"
-    run = subprocess.run(
-        [
-            str(BIN / "kitbench"),
-            *("eval", "--task", "LiftPegUpright-v1", "--episodes", "2", "--device", "cuda", "--out", str(out)),
-        ],
-        capture_output=True,
-        text=True,
-        env=OFFLINE,
-        timeout=300,
-    )
+    run = _kitbench_eval("--episodes", "2", "--device", "cuda", "--out", str(out))
     assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
     assert (
         "device 'cuda'" in run.stderr
@@ -214,17 +211,10 @@ def test_policy_options_change_inference_and_are_reported(checkpoints, tmp_path)
 )
 def test_a_bad_policy_option_is_refused_before_any_episode_runs(checkpoints, tmp_path, option, needle):
     out = tmp_path / "report"
-    run = subprocess.run(
-        [
-            str(BIN / "kitbench"),
-            *("eval", "--task", "LiftPegUpright-v1", "--episodes", "2", "--control-mode", "pd_ee_delta_pose"),
-            *("--policy", f"lerobot:{checkpoints['LiftPegUpright-v1', 'state', 'act']}", "--policy-option", option),
-            *("--out", str(out)),
-        ],
-        capture_output=True,
-        text=True,
-        env=OFFLINE,
-        timeout=300,
+    checkpoint = checkpoints["LiftPegUpright-v1", "state", "act"]
+    run = _kitbench_eval(
+        *("--episodes", "2", "--control-mode", "pd_ee_delta_pose", "--policy", f"lerobot:{checkpoint}"),
+        *("--policy-option", option, "--out", str(out)),
     )
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and needle in run.stderr, run.stderr
     assert not out.exists()

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import gymnasium as gym
@@ -16,6 +14,7 @@ import pytest
 
 import kitbench
 from kitbench.recording.recorder import RecordConfig, load_recipe, record
+from tests.processes import kill_once_committed
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -382,15 +381,7 @@ def test_kill_minus_nine_keeps_committed_episodes_and_resume_finishes(tmp_path):
         "--commit-interval",
         "0",
     ]
-    proc = subprocess.Popen([*cmd, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline:
-        jsonl = out / "meta/kitbench_episodes.jsonl"
-        if jsonl.is_file() and len(jsonl.read_text().splitlines()) >= 2:
-            break
-        time.sleep(0.2)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    kill_once_committed([*cmd, "--out", str(out)], out)
     ds = _load(out)
     kept = ds.num_episodes
     assert 2 <= kept < 6

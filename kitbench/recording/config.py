@@ -207,7 +207,7 @@ def validate(config: RecordConfig) -> None:
 
 def _check_source(config: RecordConfig) -> None:
     """A conversion's source is a kitbench recording of this task, replayed without noise of its own."""
-    from kitbench.recording.convert import SourceRecording
+    from kitbench.recording.source import SourceRecording
 
     source = SourceRecording(config.source)  # type: ignore[arg-type]  # only called with one
     if source.settings["task"] != config.task:

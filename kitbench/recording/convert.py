@@ -15,57 +15,20 @@ both have, and the same success. An episode that diverges is reported and not st
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from kitbench.errors import KitbenchError
-from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
 from kitbench.policies.convert import joint_target_to_action
+from kitbench.recording.config import RecordConfig
+from kitbench.recording.source import SourceRecording
 
 # Largest distance (m) between an object's position in the converted episode and in the source, at any frame. The
 # same control mode reproduces the source exactly (0 m). Another one tracks the source's joint targets through
 # another controller, which reaches them a little differently: measured on LiftPegUpright and AssemblingKits
 # (docs/observations.md); 1 cm admits that and refuses an episode where the object went elsewhere.
 POSITION_TOLERANCE = 0.01
-
-
-class SourceRecording:
-    """What a conversion reads of a kitbench recording: its settings, and per seed the frames' executed actions,
-    labels and environment states, and whether the episode succeeded."""
-
-    def __init__(self, root: Path):
-        import pandas as pd
-
-        self.root = Path(root)
-        if not (self.root / RECORDING_FILE).is_file():
-            raise KitbenchError(f"{self.root} is not a kitbench recording ({RECORDING_FILE} missing)")
-        self.settings = json.loads((self.root / RECORDING_FILE).read_text())
-        lines = (self.root / EPISODES_FILE).read_text().splitlines() if (self.root / EPISODES_FILE).is_file() else []
-        self.episodes = [json.loads(line) for line in lines if line.strip()]
-        files = sorted((self.root / "data").rglob("*.parquet"))
-        columns = ["episode_index", "frame_index", "action", "executed_action", "observation.environment_state"]
-        frames = pd.concat([pd.read_parquet(f, columns=columns) for f in files]).sort_values(
-            ["episode_index", "frame_index"]
-        )
-        by_index = {int(e): g for e, g in frames.groupby("episode_index")}
-        self._by_seed = {}
-        for episode in self.episodes:
-            group = by_index[episode["episode_index"]]
-            self._by_seed[int(episode["seed"])] = {
-                "executed": np.stack(group["executed_action"].to_numpy()).astype(np.float32),
-                "action": np.stack(group["action"].to_numpy()).astype(np.float32),
-                "environment_state": np.stack(group["observation.environment_state"].to_numpy()),
-                "success": bool(episode["success"]),
-            }
-
-    @property
-    def seeds(self) -> tuple[int, ...]:
-        return tuple(int(e["seed"]) for e in self.episodes)
-
-    def episode(self, seed: int) -> dict:
-        return self._by_seed[seed]
 
 
 class _Tracker:
@@ -153,8 +116,6 @@ def convert_config(source_root: Path, out: Path, **settings):
     """The `RecordConfig` of converting the recording at `source_root` into `out`: the source's task, robot, seeds,
     reward and settling, with `settings` (obs_mode, control_mode, workers, ...; None: the source's or the
     default) on top."""
-    from kitbench.recording.config import RecordConfig
-
     source = SourceRecording(source_root)
     s = source.settings
     if not source.seeds:

@@ -107,7 +107,7 @@ def _seeds(config: RecordConfig, done: set[int], next_seed: int):
     """The seeds still to run: consecutive from `next_seed`, or a conversion's source seeds not yet stored."""
     if config.source is None:
         return itertools.count(next_seed)
-    from kitbench.recording.convert import SourceRecording
+    from kitbench.recording.source import SourceRecording
 
     return iter([s for s in SourceRecording(config.source).seeds if s not in done])
 

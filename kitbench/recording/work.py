@@ -30,7 +30,8 @@ class RecordWork(Work):
 
         self._env = make_recording_env(self.config)
         if self.config.source is not None:
-            from kitbench.recording.convert import SourceRecording, make_replay, pose_position_columns
+            from kitbench.recording.convert import make_replay, pose_position_columns
+            from kitbench.recording.source import SourceRecording
 
             self._source = SourceRecording(self.config.source)
             self._policy, self._labeler = make_replay(self._source, self.config.control_mode)
