@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitbench.envs.modes import POINTCLOUD, camera_textures
+from kitbench.envs.modes import POINTCLOUD, TEXTURES, camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.envs.tabletop import POSE_NAMES
 
@@ -30,12 +30,15 @@ __all__ = [
     "action_feature",
     "action_names",
     "as_loaded",
+    "modality",
+    "obs_mode_for",
     "observation_features",
     "observation_frame",
     "vector",
 ]
 
-# The env's camera textures as dataset features: suffix of `observation.images.<camera>`, and the texture.
+# How a camera's depth and segmentation features are named after it (`observation.images.<camera><suffix>`), and
+# the prefix of the point cloud's features: `modality` reads them back.
 DEPTH_SUFFIX = "_depth"
 SEGMENTATION_SUFFIX = "_segmentation"
 POINTCLOUD_PREFIX = "observation.pointcloud."
@@ -52,7 +55,7 @@ DEPTH_ENCODING = {
     "extra_options": {"x265-params": "lossless=1:log-level=error"},
 }
 
-# EE_ACTION_NAMES: the arm part of each end-effector mode's action; joint modes name the robot's arm joints.
+# The arm part of each end-effector mode's action; joint modes name the robot's arm joints (`action_names`).
 EE_ACTION_NAMES = {
     "pd_ee_delta_pos": ["dx", "dy", "dz"],
     "pd_ee_target_delta_pos": ["dx", "dy", "dz"],
@@ -77,8 +80,14 @@ def observation_features(env, obs_mode: str | None = None, points: int = DEFAULT
     u = env.unwrapped
     obs_mode = u.obs_mode if obs_mode is None else obs_mode
     features = {STATE: vector(u.robot_state_names), ENVIRONMENT_STATE: vector(u.environment_state_names())}
+    textures = camera_textures(obs_mode)
+    # the id table of segmentations (a point cloud's too), in the features' info
+    ids = (
+        {"segmentation_ids": {str(i): n for i, n in u.segmentation_id_map.items()}}
+        if "segmentation" in textures
+        else {}
+    )
     if obs_mode == POINTCLOUD:
-        ids = {"segmentation_ids": {str(i): name for i, name in u.segmentation_id_map.items()}}
         features[POINTCLOUD_PREFIX + "xyz"] = {
             "dtype": "float32",
             "shape": (points, 3),
@@ -93,7 +102,6 @@ def observation_features(env, obs_mode: str | None = None, points: int = DEFAULT
             "info": ids,
         }
         return features
-    textures = camera_textures(obs_mode)
     for spec in u.camera_specs():
         key = IMAGES + spec.name
         if "rgb" in textures:
@@ -111,7 +119,7 @@ def observation_features(env, obs_mode: str | None = None, points: int = DEFAULT
                 "dtype": "image",
                 "shape": (spec.height, spec.width, 1),
                 "names": HWC,
-                "info": {"segmentation_ids": {str(i): name for i, name in u.segmentation_id_map.items()}},
+                "info": ids,
             }
     return features
 
@@ -141,8 +149,28 @@ def observation_frame(env, obs, sampler: PointSampler | None = None) -> dict[str
     return frame
 
 
-def is_depth(name: str) -> bool:
-    return name.startswith(IMAGES) and name.endswith(DEPTH_SUFFIX)
+def modality(name: str) -> str | None:
+    """What a dataset feature holds of an obs mode: rgb, depth, segmentation or pointcloud; None for the rest."""
+    if name.startswith(POINTCLOUD_PREFIX):
+        return POINTCLOUD
+    if not name.startswith(IMAGES):
+        return None
+    if name.endswith(DEPTH_SUFFIX):
+        return "depth"
+    return "segmentation" if name.endswith(SEGMENTATION_SUFFIX) else "rgb"
+
+
+def obs_mode_for(features) -> str:
+    """The obs mode whose observations hold the dataset features named in `features` (keys): `pointcloud` for a
+    point cloud, else the cameras' textures, rgb with depth spelled `rgbd`; `state` for none."""
+    found = {modality(name) for name in features} - {None}
+    if POINTCLOUD in found:
+        return POINTCLOUD
+    if not found:
+        return "state"
+    if found == {"rgb", "depth"}:
+        return "rgbd"
+    return "+".join(t for t in TEXTURES if t in found)
 
 
 def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str, np.ndarray]:
@@ -152,11 +180,12 @@ def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str,
     scale = {"mm": 1000.0, "m": 1.0}[depth_unit]
     out = {}
     for name, value in frame.items():
-        if not name.startswith(IMAGES):
+        kind = modality(name)
+        if kind is None or kind == POINTCLOUD:
             out[name] = value.astype(np.int64) if value.dtype.kind in "ui" else value
-        elif is_depth(name):
+        elif kind == "depth":
             out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)) * np.float32(scale)
-        elif name.endswith(SEGMENTATION_SUFFIX):
+        elif kind == "segmentation":
             out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)).astype(np.float32)
         else:
             out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)).astype(np.float32) / np.float32(255)

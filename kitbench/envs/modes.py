@@ -31,21 +31,3 @@ def camera_textures(obs_mode: str) -> frozenset[str]:
     if obs_mode in _TEXTURE_MODES:
         return frozenset(obs_mode.split("+"))
     return frozenset()
-
-
-def obs_mode_for(features) -> str:
-    """The obs mode whose observations hold the dataset features named in `features` (keys): `pointcloud` for a
-    point cloud, else the cameras' textures (`<camera>` rgb, `<camera>_depth`, `<camera>_segmentation`), rgb with
-    depth spelled `rgbd`; `state` for none."""
-    names = list(features)
-    if any(n.startswith("observation.pointcloud.") for n in names):
-        return POINTCLOUD
-    images = [n for n in names if n.startswith("observation.images.")]
-    textures = {
-        "depth" if n.endswith("_depth") else "segmentation" if n.endswith("_segmentation") else "rgb" for n in images
-    }
-    if not textures:
-        return "state"
-    if textures == {"rgb", "depth"}:
-        return "rgbd"
-    return "+".join(t for t in TEXTURES if t in textures)

@@ -13,10 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.envs.features import IMAGES, POINTCLOUD_PREFIX, as_loaded, observation_features, observation_frame
-from kitbench.envs.modes import obs_mode_for
+from kitbench.envs.features import (
+    IMAGES,
+    POINTCLOUD_PREFIX,
+    as_loaded,
+    obs_mode_for,
+    observation_features,
+    observation_frame,
+)
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, check_choice
 from kitbench.metadata import read_recording_settings
 
 
@@ -81,8 +87,6 @@ DEVICES = ("auto", "cpu", "cuda")
 
 def resolve_device(device: str) -> str:
     """`auto`: CUDA when torch sees it, else the CPU; `cuda` without CUDA is refused in one line."""
-    from kitbench.errors import check_choice
-
     check_choice("device", device, DEVICES)
     import torch
 

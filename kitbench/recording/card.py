@@ -14,6 +14,8 @@ import os
 import shlex
 from pathlib import Path
 
+from kitbench.envs.features import POINTCLOUD_PREFIX, modality
+from kitbench.envs.modes import POINTCLOUD
 from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
 
 CARD = "README.md"
@@ -27,21 +29,18 @@ UNITS = {
 }
 
 
-def _describe(name: str, feature: dict) -> str:
-    info = feature.get("info") or {}
+def _describe(name: str) -> str:
     if name in UNITS:
         return UNITS[name]
-    if info.get("is_depth_map"):
+    kind = modality(name)
+    if kind == "depth":
         return "depth along the viewing axis, metres (stored within 1 mm), 0 where the pixel sees nothing"
-    if "segmentation_ids" in info:
-        where = "per point" if name.startswith("observation.pointcloud.") else "per pixel"
+    if kind == "segmentation" or name == POINTCLOUD_PREFIX + "segmentation":
+        where = "per pixel" if kind == "segmentation" else "per point"
         return f"segmentation id {where} (the id-to-name table is in meta/info.json)"
-    if name.startswith("observation.pointcloud."):
-        part = name.rsplit(".", 1)[-1]
-        return {"xyz": "point positions, world frame, metres", "rgb": "point colours"}.get(part, part)
-    if name.startswith("observation.images."):
-        return "camera image"
-    return ""
+    if kind == POINTCLOUD:
+        return {"xyz": "point positions, world frame, metres", "rgb": "point colours"}[name.rsplit(".", 1)[-1]]
+    return "camera image" if kind == "rgb" else ""
 
 
 def record_command(recording: dict, episodes: int) -> str:
@@ -92,10 +91,7 @@ def card_text(root: Path) -> str:
     instructions = sorted({e["task"] for e in episodes if e.get("task")})
     robot = info.get("robot_type") or recording.get("robot") or "?"
     table = ["| feature | dtype | shape | what |", "|---|---|---|---|"]
-    table += [
-        f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n, features[n])} |"
-        for n in stored
-    ]
+    table += [f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n)} |" for n in stored]
     made = [f"policy `{recording['policy']}`"]
     if recording.get("source"):
         made.append(f"converted from `{recording['source']}` (its executed actions replayed from each seed)")
@@ -133,19 +129,7 @@ def card_text(root: Path) -> str:
             *table,
         ]
     )
-    modalities = sorted(
-        {
-            "depth"
-            if n.endswith("_depth")
-            else "segmentation"
-            if n.endswith("_segmentation")
-            else "pointcloud"
-            if n.startswith("observation.pointcloud.")
-            else "rgb"
-            for n in features
-            if n.startswith(("observation.images.", "observation.pointcloud."))
-        }
-    )
+    modalities = sorted({m for m in map(modality, features) if m is not None})
     structure = f"[meta/info.json](meta/info.json):\n```json\n{json.dumps(info, indent=4)}\n```\n"
     card = create_lerobot_dataset_card(
         tags=["kitbench", "simulation", recording["task"], robot, *modalities],

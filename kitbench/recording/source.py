@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -12,37 +13,42 @@ from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
 
 
 class SourceRecording:
-    """What a conversion reads of a kitbench recording: its settings, and per seed the frames' executed actions,
-    labels and environment states, and whether the episode succeeded."""
+    """What a conversion reads of a kitbench recording: its settings and seeds at once (checks and the recorder's
+    seed order need no more), and per seed the frames' executed actions, labels and environment states, and whether
+    the episode succeeded, read from the parquet files on the first `episode()` (in the workers that replay it)."""
 
     def __init__(self, root: Path):
-        import pandas as pd
-
         self.root = Path(root)
         if not (self.root / RECORDING_FILE).is_file():
             raise KitbenchError(f"{self.root} is not a kitbench recording ({RECORDING_FILE} missing)")
         self.settings = json.loads((self.root / RECORDING_FILE).read_text())
         lines = (self.root / EPISODES_FILE).read_text().splitlines() if (self.root / EPISODES_FILE).is_file() else []
         self.episodes = [json.loads(line) for line in lines if line.strip()]
-        files = sorted((self.root / "data").rglob("*.parquet"))
-        columns = ["episode_index", "frame_index", "action", "executed_action", "observation.environment_state"]
-        frames = pd.concat([pd.read_parquet(f, columns=columns) for f in files]).sort_values(
-            ["episode_index", "frame_index"]
-        )
-        by_index = {int(e): g for e, g in frames.groupby("episode_index")}
-        self._by_seed = {}
-        for episode in self.episodes:
-            group = by_index[episode["episode_index"]]
-            self._by_seed[int(episode["seed"])] = {
-                "executed": np.stack(group["executed_action"].to_numpy()).astype(np.float32),
-                "action": np.stack(group["action"].to_numpy()).astype(np.float32),
-                "environment_state": np.stack(group["observation.environment_state"].to_numpy()),
-                "success": bool(episode["success"]),
-            }
 
     @property
     def seeds(self) -> tuple[int, ...]:
         return tuple(int(e["seed"]) for e in self.episodes)
 
     def episode(self, seed: int) -> dict:
-        return self._by_seed[seed]
+        return self._frames[seed]
+
+    @functools.cached_property
+    def _frames(self) -> dict[int, dict]:
+        import pandas as pd
+
+        files = sorted((self.root / "data").rglob("*.parquet"))
+        columns = ["episode_index", "frame_index", "action", "executed_action", "observation.environment_state"]
+        frames = pd.concat([pd.read_parquet(f, columns=columns) for f in files]).sort_values(
+            ["episode_index", "frame_index"]
+        )
+        by_index = {int(e): g for e, g in frames.groupby("episode_index")}
+        by_seed = {}
+        for episode in self.episodes:
+            group = by_index[episode["episode_index"]]
+            by_seed[int(episode["seed"])] = {
+                "executed": np.stack(group["executed_action"].to_numpy()).astype(np.float32),
+                "action": np.stack(group["action"].to_numpy()).astype(np.float32),
+                "environment_state": np.stack(group["observation.environment_state"].to_numpy()),
+                "success": bool(episode["success"]),
+            }
+        return by_seed

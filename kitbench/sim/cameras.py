@@ -74,8 +74,8 @@ class Camera:
 
     def depth(self) -> np.ndarray:
         position = self.position()
-        depth = -position[..., 2:3]
-        depth = np.where(position[..., 3:4] >= 1, 0.0, depth)
+        depth = -position[..., 2:3]  # a new array: the cached picture stays as read
+        depth[position[..., 3:4] >= 1] = 0.0
         return depth.astype(np.float32)
 
     def entity_ids(self) -> np.ndarray:

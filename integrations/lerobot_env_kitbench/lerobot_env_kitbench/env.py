@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from kitbench.envs.features import IMAGES, as_loaded, observation_frame
+from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, STATE, as_loaded, observation_frame
 from kitbench.envs.modes import IMAGE_OBS_MODES
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.errors import check_choice
@@ -27,7 +27,7 @@ GYM_NAMESPACE = "gym_kitbench"
 # "pixels_state" (LeRobot's name) is kitbench's rgb; the others are kitbench's obs modes by name.
 OBS_TYPES = ("state", "pixels_state", *IMAGE_OBS_MODES)
 OBSERVATION = "observation."
-STATE_KEYS = {"observation.state": "agent_pos", "observation.environment_state": "environment_state"}
+STATE_KEYS = {STATE: "agent_pos", ENVIRONMENT_STATE: "environment_state"}  # dataset name -> lerobot's env key
 
 
 def obs_mode_of(obs_type: str) -> str:
