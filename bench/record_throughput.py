@@ -4,7 +4,7 @@ Options: `--task T`, `--episodes N` (per cell, 40), and filters on the cells: `-
 there is no Vulkan device), `--executor local,ray`, `--workers 1,2`, `--mcap on,off` (default on only: the off
 cells double the run); `--shard-episodes N` (10: each multi-worker cell is recorded again with shards of N
 episodes, `--shard-episodes` of `kitbench record`; 0 skips them); `--ceiling-episodes N` (0 skips the commit
-ceiling), `--ceiling-sample K`.
+ceiling), `--ceiling-sample K`, `--convert-episodes N` (200; 0 skips the conversion).
 
 Records N expert episodes per cell into a temporary folder, for every combination of the filters, and prints
 episodes/min, frames/s and MiB per episode, all measured in one run (the machine is shared; compare ratios, not
@@ -32,6 +32,10 @@ episode costs the writer (journal, dataset, commits), the bytes that travel from
 feed: the ceiling over one worker's steady episodes/min (the 1-worker Ray cell's, else the in-process cell's, which
 includes the writes, else the K recorded episodes'), and over the K recorded episodes' bare rate. The journal's
 share of an episode's time is what durability under kill -9 costs.
+
+Last, what `kitbench convert` saves: N expert episodes recorded with state observations, then converted to rgb
+(`kitbench convert --obs-mode rgb`) and recorded with rgb from scratch, with the most workers of `--workers`, one
+after the other (`bench/convert.py`'s comparison): both speeds, their ratio and the successes reproduced.
 """
 
 from __future__ import annotations
@@ -170,9 +174,12 @@ def main() -> None:
     )
     parser.add_argument("--ceiling-episodes", type=int, default=200, help="episodes the writer takes in (0: skip)")
     parser.add_argument("--ceiling-sample", type=int, default=10, help="episodes recorded for the ceiling")
+    parser.add_argument(
+        "--convert-episodes", type=int, default=200, help="state episodes converted to rgb against recording (0: skip)"
+    )
     args = parser.parse_args()
-    if args.episodes < 1 or args.ceiling_sample < 1 or args.ceiling_episodes < 0:
-        parser.error("--episodes and --ceiling-sample must be >= 1, --ceiling-episodes >= 0")
+    if args.episodes < 1 or args.ceiling_sample < 1 or min(args.ceiling_episodes, args.convert_episodes) < 0:
+        parser.error("--episodes and --ceiling-sample must be >= 1, --ceiling-episodes and --convert-episodes >= 0")
     executors = args.executor or ["local", "ray"]
     if "ray" in executors and importlib.util.find_spec("ray") is None:
         hint = "" if args.executor else "; pass --executor local to skip the Ray cells"
@@ -225,6 +232,20 @@ def main() -> None:
     if args.ceiling_episodes > 0:
         mcap = True if True in mcaps else mcaps[0]
         print_ceiling(args, results, obs_modes, mcap)
+    if args.convert_episodes > 0 and "rgb" in obs_modes:
+        print_conversion(args.task, args.convert_episodes, max(args.workers))
+
+
+def print_conversion(task: str, n: int, workers: int) -> None:
+    from convert import rgb_against_recording
+
+    with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as scratch:
+        source = Path(scratch) / "state"
+        start = time.perf_counter()
+        record(RecordConfig(task, n, source, mcap=False, workers=workers), progress=False)
+        state_rate = 60 * n / (time.perf_counter() - start)
+        print(f"\n{task}: {n} expert episodes recorded with state at {state_rate:.0f} episodes/min; then")
+        print(rgb_against_recording(task, source, Path(scratch), n, workers))
 
 
 def print_ratios(results: dict, obs_modes: list, mcaps: list, executors: list, workers: list) -> None:

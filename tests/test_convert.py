@@ -82,10 +82,43 @@ def test_another_action_space_tracks_the_joint_trajectory(joint_delta_source, tm
         env.close()
 
 
+def test_absolute_targets_beyond_a_delta_box_are_reached_with_catch_up_steps(tmp_path):
+    """The expert's absolute joint targets lead the joints by up to 0.2 rad, past the 0.1 rad a joint-delta step
+    may command: the converted arm gets extra steps to reach each target, so its episodes run longer than their
+    sources, yet the peg follows its source path and stands up as it did; and the stored actions, replayed in the
+    new mode from the seed, do the same."""
+    import gymnasium as gym
+
+    from kitbench.recording.convert import CATCH_UP_STEPS
+
+    assert CATCH_UP_STEPS >= 1
+    source = _source(tmp_path / "src", "pd_joint_pos", episodes=3, mcap=False)
+    out = tmp_path / "deltas"
+    summary = record(convert_config(source, out, control_mode="pd_joint_delta_pos", mcap=False), progress=False)
+    assert summary.stored + summary.rejected == 3 and summary.stored >= 2
+    a, src = _columns(out), _columns(source)
+    source_lengths = {e["seed"]: e["length"] for e in map(json.loads, (source / "meta/kitbench_episodes.jsonl").open())}
+    for episode in map(json.loads, (out / "meta/kitbench_episodes.jsonl").open()):
+        assert episode["length"] > source_lengths[episode["seed"]]  # catch-up steps were taken
+        env = gym.make(f"kitbench/{TASK}", control_mode="pd_joint_delta_pos")
+        env.reset(seed=episode["seed"])
+        actions = a["executed_action"][a["episode_index"].reshape(-1) == episode["episode_index"]]
+        assert np.abs(actions[:, :-1]).max() <= 0.1 + 1e-6  # every arm step within the delta box
+        for action in actions:
+            _, _, _, _, info = env.step(action)
+        assert bool(info["success"]) and episode["success"]
+        env.close()
+    assert len(src["action"]) < len(a["action"])
+
+
 def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
-    """The expert's absolute joint targets step up to 0.13 rad a control step, past the 0.1 rad box of the joint
-    delta modes: tracked there the peg is not stood up, and the conversion says so instead of storing it."""
+    """A source whose seeds no longer match its actions (two episodes' seeds swapped): each replay grasps where
+    the other episode's peg lay, and the conversion says so instead of storing it."""
     source = _source(tmp_path / "src", "pd_joint_pos", episodes=2, mcap=False)
+    episodes_file = source / "meta/kitbench_episodes.jsonl"
+    episodes = [json.loads(x) for x in episodes_file.open()]
+    episodes[0]["seed"], episodes[1]["seed"] = episodes[1]["seed"], episodes[0]["seed"]
+    episodes_file.write_text("".join(json.dumps(e) + "\n" for e in episodes))
     out = tmp_path / "deltas"
     run = subprocess.run(
         [sys.executable, "-m", "kitbench.cli", "convert", str(source), "--out", str(out)]
@@ -95,9 +128,26 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
         timeout=600,
     )
     assert run.returncode == 0, run.stderr[-2000:]
-    assert "seed 0: not stored, success False where the source had True" in run.stderr
+    assert "seed 0: not stored, " in run.stderr and "seed 1: not stored, " in run.stderr
     assert "not stored because they diverged from the source: 2 episode(s)" in run.stdout
     assert not (out / "meta/kitbench_episodes.jsonl").exists()
+
+
+def test_path_gap_ignores_timing_and_measures_a_detour():
+    from kitbench.recording.convert import path_gap
+
+    rng = np.random.default_rng(0)
+    path = np.cumsum(rng.uniform(0, 0.01, size=(40, 6)), axis=0)  # two objects' positions along an episode
+    assert path_gap(path, path) == 0.0
+    slowed = np.repeat(path, 3, axis=0)  # the same path at a third of the speed
+    assert path_gap(slowed, path) == 0.0
+    between = np.empty((79, 6))  # frames on the source's frames and halfway between them
+    between[0::2], between[1::2] = path, (path[:-1] + path[1:]) / 2
+    assert path_gap(between, path) < 1e-12
+    detour = path.copy()
+    detour[20, 3:] += [0.0, 0.0, 0.02]  # the second object lifted 2 cm off its path at one frame
+    assert path_gap(detour, path) == pytest.approx(0.02, abs=0.003)
+    assert path_gap(path[:20], path) > 0.05  # stopped halfway: the rest of the path was never followed
 
 
 def test_kill_minus_nine_loses_at_most_the_episode_in_flight_and_resume_finishes_identically(tmp_path):

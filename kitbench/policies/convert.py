@@ -13,8 +13,9 @@ from kitbench.control.controllers import JOINT_DELTA_MODES, TARGET_DELTA_MODES, 
 from kitbench.geometry import matrix_to_axis_angle
 
 
-def joint_target_to_action(env, arm_target: np.ndarray, gripper: float) -> np.ndarray:
-    """The env's action that drives the arm to `arm_target` (joint positions) with the gripper at `gripper`."""
+def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bool = True) -> np.ndarray:
+    """The env's action that drives the arm to `arm_target` (joint positions) with the gripper at `gripper`,
+    clipped to the action box unless `clip` is False (then it says how far outside the box the target lies)."""
     u = env.unwrapped
     mode = u.control_mode
     controller = u.controller
@@ -38,5 +39,7 @@ def joint_target_to_action(env, arm_target: np.ndarray, gripper: float) -> np.nd
     # the robot's body joints and base (if any) hold still: zero deltas, zero velocities
     extra = np.zeros(len(u.robot_spec.extra_action_names))
     action = np.concatenate([arm, [gripper], extra]).astype(np.float32)
+    if not clip:
+        return action
     space = u.action_space
     return np.clip(action, space.low, space.high)

@@ -7,14 +7,17 @@ they are: PhysX is deterministic in the seed and the actions, so every state, an
 Another control mode tracks the source's joint trajectory: a shadow env in the source's mode replays the executed
 actions, and each step the new env is given the action that drives its arm to the joint targets the shadow's
 controller set (`policies.convert.joint_target_to_action`); the labels (`action`) are re-expressed the same way.
+Where the new mode cannot command a target in one step (a delta mode's box), the arm gets up to
+`CATCH_UP_STEPS` more steps to reach it, so a converted episode may be longer than its source.
 
-Every converted episode is checked against its source before it is stored: the poses of the task's objects
-(every pose field of `observation.environment_state`) within `POSITION_TOLERANCE` of the source's at every frame
-both have, and the same success. An episode that diverges is reported and not stored.
+Every converted episode is checked against its source before it is stored: the same success, and the positions of
+the task's objects (every pose field of `observation.environment_state`) within `POSITION_TOLERANCE` of their path
+in the source, whatever the timing. An episode that diverges is reported and not stored.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,28 +27,51 @@ from kitbench.policies.convert import joint_target_to_action
 from kitbench.recording.config import RecordConfig
 from kitbench.recording.source import SourceRecording
 
-# Largest distance (m) between an object's position in the converted episode and in the source, at any frame. The
-# same control mode reproduces the source exactly (0 m), and so do absolute joint targets from joint deltas. The
-# end-effector modes reach the same joint targets through their IK a little differently: the peg within 0.1-2.5 mm
-# of its source path (LiftPegUpright, seed 0, from joint deltas). 1 cm admits that and refuses an episode where
-# the object went elsewhere (11-88 mm where a conversion lost the peg: `bench/convert.py`, README).
+# Largest distance (m) between an object's position in the converted episode and the object's path in the source
+# (`path_gap`). The same control mode reproduces the source exactly (0 m), and so do absolute joint targets from
+# joint deltas. The end-effector modes reach the same joint targets through their IK a little differently: the
+# peg within 0.1-2.5 mm of its source path (LiftPegUpright, seed 0, from joint deltas). 1 cm admits that and
+# refuses an episode where the object went elsewhere (15.8-81.3 mm off its path where AssemblingKits conversions
+# from absolute joint targets to joint deltas, without catch-up steps, misplaced the shape; 30 episodes).
 POSITION_TOLERANCE = 0.01
+
+# Steps a converted episode may add to one source step whose joint target the new mode cannot command at once
+# (the measured-delta modes: 0.1 rad or 0.1 m from where the arm is, where the expert's absolute targets lead the
+# joints by up to 0.2 rad). From `pd_joint_pos` to pd_joint_delta_pos / pd_ee_delta_pose, expert episodes
+# reproduced (one run each): with none, LiftPegUpright 0/30 / 0/30, AssemblingKits 12/30 / 15/30; with 1
+# (ManiSkill's replay_trajectory allows 1), 22/30 / 30/30 and 27/30 / 30/30; with 2, 49/50 / 50/50 and
+# 45/50 / 50/50 (`bench/convert.py`); 3 and 4 changed nothing.
+CATCH_UP_STEPS = 2
 
 
 class _Tracker:
     """One converted episode's actions, step by step: the source's as they are in the same control mode, else
-    re-expressed in the new one by tracking a shadow env in the source's mode. `label()` then `act()` each step."""
+    re-expressed in the new one by tracking a shadow env in the source's mode. `label()` then `act()` each step.
+
+    A source step whose joint target lies beyond what one step of the new mode may command (a delta mode's box)
+    is given up to `CATCH_UP_STEPS` more steps aimed at the same target before the next source step is taken, as
+    ManiSkill's `replay_trajectory` gives one: the converted episode is then longer than its source, and
+    `starts` says at which of its frames each source step began."""
 
     def __init__(self, source: SourceRecording, shadow_env):
         self.source = source
         self.shadow = shadow_env  # None: the same control mode
+        self.starts: list[int] = []
         self._t = 0
+        self._frame = 0
+        self._extra = 0  # steps spent on the current source step beyond its first
+        self._final = True  # this env step completes the source step
+        self._targets: tuple[np.ndarray, np.ndarray] | None = None  # (executed, label) joint targets of step t
+        self._hand: float | None = None  # the hand's command of the last source step completed
         self._executed: np.ndarray | None = None
 
     def reset(self, env, seed: int) -> None:
         self.env = env
         self.frames = self.source.episode(seed)
-        self._t = 0
+        self.starts = []
+        self._t = self._frame = self._extra = 0
+        self._hand = None
+        self._n_extra = len(env.unwrapped.robot_spec.extra_action_names)  # body joints and base, after the hand
         if self.shadow is not None:
             self.shadow.reset(seed=seed)
 
@@ -56,31 +82,62 @@ class _Tracker:
     def label(self) -> np.ndarray:
         """This step's label (`action`); also works out the step's executed action."""
         t = self._t
+        self._final = True
         if t >= len(self.frames["executed"]):  # past the source's end: hold still, as a replay does
             self._executed = self._hold()
             return self._executed
         executed, label = self.frames["executed"][t], self.frames["action"][t]
+        if self._extra == 0:
+            self.starts.append(self._frame)
         if self.shadow is None:
             self._executed = executed
             return label
         s = self.shadow.unwrapped
         n_arm = s.controller.action_space.shape[0] - 1
-        label_target = s.controller.preview(label[:n_arm], s.robot.arm_qpos())  # from the state before the step
-        self.shadow.step(executed)
-        executed_target = s.controller.joint_target.copy()
-        self._executed = self._express(executed_target, executed, n_arm)
-        return self._express(label_target, label, n_arm)
+        if self._extra == 0:  # the source's step, played once in the shadow
+            label_target = s.controller.preview(label[:n_arm], s.robot.arm_qpos())  # from the state before the step
+            self.shadow.step(executed)
+            self._targets = (s.controller.joint_target.copy(), label_target)
+        assert self._targets is not None
+        executed_target, label_target = self._targets
+        self._executed, fits = self._express(executed_target, executed, n_arm)
+        labelled = self._express(label_target, label, n_arm)[0]
+        self._final = fits or self._extra >= CATCH_UP_STEPS
+        if not self._final:
+            # the arm catches up first; the rest of the step's command (hand, body joints, base) goes with the
+            # step that completes it, so that it is applied once, with the arm where the source's was
+            self._hold_rest(self._executed)
+            self._hold_rest(labelled)
+        else:
+            self._hand = float(self._executed[-1 - self._n_extra])
+        return labelled
 
-    def _express(self, target: np.ndarray, source_action: np.ndarray, n_arm: int) -> np.ndarray:
-        action = joint_target_to_action(self.env, target, float(source_action[n_arm]))
+    def _hold_rest(self, action: np.ndarray) -> None:
+        """Keep the hand at its last command and stop the body joints and base (zero deltas and velocities)."""
+        if self._n_extra:
+            action[-self._n_extra :] = 0.0
+        if self._hand is not None:
+            action[-1 - self._n_extra] = self._hand
+
+    def _express(self, target: np.ndarray, source_action: np.ndarray, n_arm: int) -> tuple[np.ndarray, bool]:
+        """The action reaching `target` from the new env's state, and whether it fits the action box (the
+        source's body joints and base commands and hand aside, which fit it as they are)."""
+        action = joint_target_to_action(self.env, target, float(source_action[n_arm]), clip=False)
         extra = source_action[n_arm + 1 :]  # body joints and base: deltas and velocities whatever the arm's mode
         if len(extra):
             action[-len(extra) :] = extra
-        return action
+        space = self.env.unwrapped.action_space
+        clipped = np.clip(action, space.low, space.high)
+        return clipped, bool(np.allclose(clipped, action, atol=1e-6))
 
     def act(self) -> np.ndarray:
         assert self._executed is not None
-        self._t += 1
+        self._frame += 1
+        if self._final:
+            self._t += 1
+            self._extra = 0
+        else:
+            self._extra += 1
         return self._executed
 
 
@@ -113,6 +170,19 @@ class _Act:
         return self.tracker.act()
 
 
+@dataclass
+class Replay:
+    """What converts a recording: the acting policy and the labeler for `rollout.run_episode`, and after each
+    episode the frame at which each source step began (`starts`, for `divergence`)."""
+
+    policy: _Act
+    labeler: _Label
+
+    @property
+    def starts(self) -> list[int]:
+        return self.policy.tracker.starts
+
+
 def convert_config(source_root: Path, out: Path, **settings):
     """The `RecordConfig` of converting the recording at `source_root` into `out`: the source's task, robot, seeds,
     reward and settling, with `settings` (obs_mode, control_mode, workers, ...; None: the source's or the
@@ -141,8 +211,8 @@ def convert_config(source_root: Path, out: Path, **settings):
     )
 
 
-def make_replay(source: SourceRecording, control_mode: str):
-    """(acting policy, labeler) that replay `source` in `control_mode`."""
+def make_replay(source: SourceRecording, control_mode: str) -> Replay:
+    """What replays `source` in `control_mode`."""
     from kitbench.registration import make_env
 
     settings = source.settings
@@ -155,25 +225,46 @@ def make_replay(source: SourceRecording, control_mode: str):
             robot_uids=settings.get("robot"),
         )
     tracker = _Tracker(source, shadow)
-    return _Act(tracker), _Label(tracker)
+    return Replay(_Act(tracker), _Label(tracker))
 
 
-def divergence(source: SourceRecording, episode, pose_columns: list[int]) -> str | None:
-    """Why a converted episode does not reproduce its source (None when it does): success, or an object more than
-    `POSITION_TOLERANCE` from where it was."""
+def divergence(source: SourceRecording, episode, pose_columns: list[int], starts: list[int]) -> str | None:
+    """Why a converted episode does not reproduce its source (None when it does): success, or objects that left
+    their source's path by more than `POSITION_TOLERANCE` (`path_gap`) over the source steps it replayed
+    (`starts`: the converted frame at which each source step began)."""
     frames = source.episode(episode.seed)
     if episode.success != frames["success"]:
         return f"success {episode.success} where the source had {frames['success']}"
-    converted = np.stack([f["observation.environment_state"] for f in episode.frames])
-    n = min(len(converted), len(frames["environment_state"]))
-    if not pose_columns or n == 0:
+    replayed = [f for f in starts if f < len(episode.frames)][: len(frames["environment_state"])]
+    if not pose_columns or not replayed:
         return None
-    gap = (converted[:n, pose_columns] - frames["environment_state"][:n, pose_columns]).reshape(n, -1, 3)
-    worst = float(np.linalg.norm(gap, axis=-1).max())
+    converted = np.stack([f["observation.environment_state"] for f in episode.frames[: replayed[-1] + 1]])
+    original = frames["environment_state"][: len(replayed)]
+    worst = path_gap(converted[:, pose_columns], original[:, pose_columns])
     if worst > POSITION_TOLERANCE:
         limit = POSITION_TOLERANCE * 1000
-        return f"an object {worst * 1000:.1f} mm from where it was in the source (tolerance {limit:g} mm)"
+        return f"an object {worst * 1000:.1f} mm off its path in the source (tolerance {limit:g} mm)"
     return None
+
+
+def path_gap(converted: np.ndarray, original: np.ndarray) -> float:
+    """How far (m) the objects of a converted episode strayed from their path in the source, whatever the timing
+    (catch-up steps slow a converted robot down): the Hausdorff distance between the two paths, each the polyline
+    through its episode's object positions (frames x [x, y, z] per object, all objects one point). Frame for frame
+    equal episodes give 0, and so does the same path taken at another speed."""
+    return max(_to_polyline(converted, original), _to_polyline(original, converted))
+
+
+def _to_polyline(points: np.ndarray, path: np.ndarray) -> float:
+    """The largest distance from one of `points` to the polyline through `path` (rows: points)."""
+    if len(path) == 1:
+        return float(np.linalg.norm(points - path[0], axis=-1).max())
+    start, segment = path[:-1], path[1:] - path[:-1]
+    length2 = np.maximum((segment**2).sum(axis=-1), 1e-18)
+    # each point's nearest point on each segment: its projection, clamped to the segment's ends
+    s = np.clip(((points[:, None] - start[None]) * segment[None]).sum(axis=-1) / length2, 0.0, 1.0)
+    nearest = start[None] + s[..., None] * segment[None]
+    return float(np.linalg.norm(points[:, None] - nearest, axis=-1).min(axis=1).max())
 
 
 def pose_position_columns(env) -> list[int]:

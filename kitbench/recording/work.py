@@ -34,7 +34,8 @@ class RecordWork(Work):
             from kitbench.recording.source import SourceRecording
 
             self._source = SourceRecording(self.config.source)
-            self._policy, self._labeler = make_replay(self._source, self.config.control_mode)
+            self._replay = make_replay(self._source, self.config.control_mode)
+            self._policy, self._labeler = self._replay.policy, self._replay.labeler
             self._poses = pose_position_columns(self._env)
             return
         self._policy = make_policy(self.config.policy)
@@ -57,7 +58,7 @@ class RecordWork(Work):
         if self.config.source is not None:
             from kitbench.recording.convert import divergence
 
-            episode.rejected = divergence(self._source, episode, self._poses)
+            episode.rejected = divergence(self._source, episode, self._poses, self._replay.starts)
         return episode, None if log is None else log.getvalue()
 
     def close(self) -> None:
