@@ -2,7 +2,7 @@
 
     python bench/learnability.py --task LiftPegUpright-v1 --obs state --demos 50,100,200 --policy act [--steps N]
         [--out outputs/learnability] [--control-mode M] [--action-noise X] [--noise-phases P,Q] [--settle-steps K]
-        [--suite-episodes E] [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
+        [--suite-episodes E] [--eval-batch-size B] [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
         [--policy-option KEY=V1[,V2...] ...]
 
 For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
@@ -108,6 +108,7 @@ class Plan:
     noise_phases: str | None  # comma-separated, as `kitbench record --noise-phases` takes them
     settle_steps: int | None
     suite_episodes: int | None
+    eval_batch_size: int
     tag: str | None
     # each combination of the --policy-option values, one evaluation of the trained checkpoint each
     option_sets: tuple[tuple[tuple[str, object], ...], ...] = ((),)
@@ -211,7 +212,11 @@ def check_args(args: argparse.Namespace) -> Plan:
     for flag, value in (("--policy", args.policy), ("--tag", args.tag)):
         if value is not None and not NAME.fullmatch(value):
             raise UsageError(f"{flag} {value!r} must be a name of letters, digits, '.', '_' or '-'")
-    for flag, value, low in (("--steps", args.steps, 1), ("--suite-episodes", args.suite_episodes, 1)):
+    for flag, value, low in (
+        ("--steps", args.steps, 1),
+        ("--suite-episodes", args.suite_episodes, 1),
+        ("--eval-batch-size", args.eval_batch_size, 1),
+    ):
         if value is not None and value < low:
             raise UsageError(f"{flag} must be a positive integer, got {value}")
     if args.settle_steps is not None and args.settle_steps < 0:
@@ -280,6 +285,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         noise_phases=args.noise_phases,
         settle_steps=args.settle_steps,
         suite_episodes=args.suite_episodes,
+        eval_batch_size=args.eval_batch_size,
         tag=args.tag,
         option_sets=parse_sweep(args.policy_option or [], config_data["policy"]["type"]),
     )
@@ -455,6 +461,8 @@ def evaluate(
     ]
     if plan.suite_episodes is not None:
         command += ["--episodes", str(plan.suite_episodes)]
+    if plan.eval_batch_size > 1:
+        command += ["--batch-size", str(plan.eval_batch_size)]
     for key, value in options:
         command += ["--policy-option", f"{key}={json.dumps(value)}"]
     run_logged(command, eval_dir.with_name(eval_dir.name + ".log"))
@@ -665,6 +673,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--settle-steps", dest="settle_steps", type=int, help="passed to kitbench record")
     parser.add_argument(
         "--suite-episodes", dest="suite_episodes", type=int, help="score on the suite's first E seeds (default all)"
+    )
+    parser.add_argument(
+        "--eval-batch-size",
+        dest="eval_batch_size",
+        type=int,
+        default=1,
+        help="environments stepped in lockstep per evaluation worker, one policy call for all (kitbench eval "
+        "--batch-size; default 1)",
     )
     parser.add_argument("--tag", help="names a variant: run folders, results rows and plot lines carry it")
     parser.add_argument("--config", help="lerobot-train config (default policies/<policy>_<task>_<obs>.json)")
