@@ -39,48 +39,67 @@ def _demo(args) -> int:
 
 
 def _record(args) -> int:
-    from kitbench.recording.recorder import RecordConfig, load_recipe, record
+    from kitbench.recording.recorder import RecordConfig, load_recipe
 
     flags = {
         "task": args.task,
         "episodes": args.episodes,
         "out": args.out,
         "seed": args.seed,
-        "obs_mode": args.obs_mode,
-        "pointcloud_points": args.pointcloud_points,
         "label": args.label,
-        "control_mode": args.control_mode,
         "policy": args.policy,
         "only_success": args.only_success or None,
-        "workers": args.workers,
-        "resume": args.resume or None,
-        "overwrite": args.overwrite or None,
-        "mcap": args.mcap,
         "repo_id": args.repo_id,
-        "commit_interval": args.commit_interval,
         "max_attempts": args.max_attempts,
         "action_noise": args.action_noise,
         "noise_phases": None if args.noise_phases is None else tuple(args.noise_phases.split(",")),
         "settle_steps": args.settle_steps,
         "reward_mode": args.reward_mode,
-        "executor": args.executor,
-        "ray_address": args.ray_address,
         "shard_episodes": args.shard_episodes,
         "robot": args.robot,
+        **_recording_flags(args),
     }
-    try:
+
+    def config():
         if args.recipe:
-            config = load_recipe(Path(args.recipe), **flags)
-        else:
-            missing = [f"--{k}" for k in ("task", "episodes", "out") if flags[k] is None]
-            if missing:
-                raise KitbenchError(f"missing {', '.join(missing)} (or give a recipe file)")
-            config = RecordConfig(**{k: v for k, v in flags.items() if v is not None} | {"out": Path(args.out)})
-        summary = record(config)
+            return load_recipe(Path(args.recipe), **flags)
+        missing = [f"--{k}" for k in ("task", "episodes", "out") if flags[k] is None]
+        if missing:
+            raise KitbenchError(f"missing {', '.join(missing)} (or give a recipe file)")
+        return RecordConfig(**{k: v for k, v in flags.items() if v is not None} | {"out": Path(args.out)})
+
+    return _run_recording("record", config)
+
+
+def _recording_flags(args) -> dict:
+    """The flags `kitbench record` and `kitbench convert` share: what is stored and how the recording runs
+    (None: the recipe's, the source's or the default)."""
+    return {
+        "obs_mode": args.obs_mode,
+        "control_mode": args.control_mode,
+        "pointcloud_points": args.pointcloud_points,
+        "workers": args.workers,
+        "executor": args.executor,
+        "ray_address": args.ray_address,
+        "resume": args.resume or None,
+        "overwrite": args.overwrite or None,
+        "mcap": args.mcap,
+        "commit_interval": args.commit_interval,
+    }
+
+
+def _run_recording(command: str, config) -> int:
+    """Build the `RecordConfig` (`config()`) and record it: a bad setting is one line and exit status 2, else
+    the summary and the recorder's exit status."""
+    from kitbench.recording.recorder import record
+
+    try:
+        recording = config()
+        summary = record(recording)
     except KitbenchError as exc:
-        print(f"kitbench record: error: {exc}", file=sys.stderr)
+        print(f"kitbench {command}: error: {exc}", file=sys.stderr)
         return 2
-    for line in summary.lines(config.out):
+    for line in summary.lines(recording.out):
         print(line)
     return summary.exit_code
 
@@ -113,29 +132,10 @@ def _view(args) -> int:
 
 def _convert(args) -> int:
     from kitbench.recording.convert import convert_config
-    from kitbench.recording.recorder import record
 
-    settings = {
-        "obs_mode": args.obs_mode,
-        "control_mode": args.control_mode,
-        "pointcloud_points": args.pointcloud_points,
-        "workers": args.workers,
-        "executor": args.executor,
-        "ray_address": args.ray_address,
-        "resume": args.resume or None,
-        "overwrite": args.overwrite or None,
-        "mcap": args.mcap,
-        "commit_interval": args.commit_interval,
-    }
-    try:
-        config = convert_config(Path(args.source), Path(args.out), **settings)
-        summary = record(config)
-    except KitbenchError as exc:
-        print(f"kitbench convert: error: {exc}", file=sys.stderr)
-        return 2
-    for line in summary.lines(config.out):
-        print(line)
-    return summary.exit_code
+    return _run_recording(
+        "convert", lambda: convert_config(Path(args.source), Path(args.out), **_recording_flags(args))
+    )
 
 
 def _slug(text: str) -> str:
