@@ -5,6 +5,7 @@ cameras; recordings and policies know their robot."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import gymnasium as gym
@@ -265,3 +266,35 @@ def test_a_policy_trained_on_one_robot_runs_on_it_and_is_refused_on_the_other():
         fit_suite_to_policy(panda, _TrainedOn("fetch"), frozenset({"robot"}))
     with pytest.raises(KitbenchError, match=r"robot 'fetch' is not supported by AssemblingKits-v1"):
         adhoc_suite("AssemblingKits-v1", 2, robot="fetch")
+
+
+def test_the_dataset_card_names_the_joints_a_fetch_expert_holds_still(tmp_path):
+    """Fetch's expert drives only the arm: its head, torso and base sit still up to servo jitter, which LeRobot's
+    mean/std normalisation would blow up. The card says which entries those are, and no arm joint among them."""
+    from kitbench.recording.config import RecordConfig
+    from kitbench.recording.recorder import record
+
+    out = tmp_path / "fetch"
+    config = RecordConfig(
+        task="LiftPegUpright-v1", episodes=2, out=out, control_mode="pd_joint_pos", robot="fetch", mcap=False
+    )
+    record(config, progress=False)
+    held = [line for line in (out / "README.md").read_text().splitlines() if line.startswith("- Held still")]
+    assert len(held) == 1, held
+    body = ["head_pan_joint", "head_tilt_joint", "torso_lift_joint", "base_x", "base_y", "base_yaw"]
+    assert all(f"`{name}`" in held[0] for name in body), held[0]
+    arm = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_flex_joint", "wrist_roll_joint", "gripper_opening"]
+    assert not any(f"`{name}`" in held[0] for name in arm), held[0]
+
+
+def test_still_entries_reads_the_state_std_against_the_threshold(tmp_path):
+    from kitbench.recording.card import STILL_STD, still_entries
+
+    (tmp_path / "meta").mkdir()
+    names = ["a", "b", "c"]
+    info = {"features": {"observation.state": {"names": names, "shape": [3]}}}
+    (tmp_path / "meta" / "info.json").write_text(json.dumps(info))
+    assert still_entries(tmp_path) == []  # no stats yet: nothing claimed
+    stats = {"observation.state": {"std": [0.2, STILL_STD / 2, STILL_STD]}}
+    (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
+    assert still_entries(tmp_path) == ["b"]

@@ -7,8 +7,11 @@ import json
 from functools import cache
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from kitbench.envs.features import STATE
+from kitbench.recording.card import STILL_STD
 from kitbench.recording.recorder import load_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,24 +59,28 @@ def _shortest_demo(
     noise_phases: tuple[str, ...] | None,
     first_seed: int,
     robot: str | None = None,
-) -> int:
-    """The shortest successful episode among a recipe's first seeds, recorded as state: cameras do not change
-    the physics, so an image recipe's episodes are as long."""
+) -> tuple[int, tuple[str, ...]]:
+    """The shortest successful episode among a recipe's first seeds, recorded as state (cameras do not change
+    the physics, so an image recipe's episodes are as long), and the `observation.state` entries those episodes
+    hold still (`kitbench.recording.card.still_entries`' rule)."""
     from kitbench.policies.expert import ExpertPolicy
     from kitbench.recording.rollout import run_episode
     from kitbench.registration import make_env
 
     env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
-    lengths = []
+    names = list(env.unwrapped.robot_state_names)
+    lengths, states = [], []
     for seed in range(first_seed, first_seed + LENGTH_SEEDS):
         episode = run_episode(
             env, ExpertPolicy(), seed, settle_steps=settle_steps, action_noise=action_noise, noise_phases=noise_phases
         )
         if episode.success:
             lengths.append(episode.length)
+            states += [frame[STATE] for frame in episode.frames]
     env.close()
     assert lengths, f"the {task} expert succeeded in none of seeds {first_seed}..{first_seed + LENGTH_SEEDS - 1}"
-    return min(lengths)
+    std = np.std(np.stack(states), axis=0)
+    return min(lengths), tuple(name for name, value in zip(names, std, strict=True) if value < STILL_STD)
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
@@ -92,7 +99,7 @@ def test_config_fits_the_data_its_recipe_writes(path):
 
     cfg = draccus.parse(TrainPipelineConfig, config_path=str(path), args=[])
     recipe = RECIPES[cfg.dataset.root]
-    shortest = _shortest_demo(
+    shortest, still = _shortest_demo(
         recipe.task,
         recipe.control_mode,
         recipe.settle_steps,
@@ -105,6 +112,9 @@ def test_config_fits_the_data_its_recipe_writes(path):
     span = policy.chunk_size if policy.type == "act" else policy.horizon
     assert span <= shortest, f"{path.name}: {span} action steps per prediction, shortest demo {shortest}"
     assert policy.n_action_steps <= span
+    # entries the demonstrations hold still must not be divided by their jitter (dataset card, "Held still")
+    if still:
+        assert policy.normalization_mapping["STATE"].value == "IDENTITY", f"{path.name}: {still} are held still"
 
     state_env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode, robot_uids=recipe.robot)
     try:
@@ -125,4 +135,32 @@ def test_state_configs_train_on_a_cpu_and_image_configs_say_they_want_a_gpu(path
     raw = json.loads(path.read_text())
     assert raw["policy"]["device"] == ("cpu" if path.stem.endswith("_state") else "cuda")
     assert raw["eval"]["batch_size"] > 1 and raw["eval"]["use_async_envs"] is True
-    assert 0 < raw["env_eval_freq"] <= raw["steps"]
+    if path.stem.endswith("_state"):
+        assert 0 < raw["env_eval_freq"] <= raw["steps"]
+    else:  # scored by `kitbench eval` on the GPU, batched, not by lerobot's two-env loop inside the budget
+        assert raw["env_eval_freq"] == 0
+
+
+@pytest.mark.parametrize("path", [p for p in CONFIGS if p.stem.endswith("_rgb")], ids=lambda p: p.stem)
+def test_image_configs_read_the_cameras_and_joints_not_the_object_pose(path):
+    """lerobot-train feeds a policy every `observation.*` feature unless the config names its inputs, and a
+    camera dataset also holds `observation.environment_state` (the objects' poses): an image config that left
+    its inputs to lerobot would learn from the pose it is meant to see."""
+    from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, observation_features
+    from kitbench.registration import make_env
+
+    raw = json.loads(path.read_text())
+    inputs = raw["policy"]["input_features"]
+    recipe = RECIPES[raw["dataset"]["root"]]
+    env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode, robot_uids=recipe.robot)
+    try:
+        recorded = observation_features(env, recipe.obs_mode)
+    finally:
+        env.close()
+    cameras = {name for name in recorded if name.startswith(IMAGES)}
+    assert ENVIRONMENT_STATE in recorded and ENVIRONMENT_STATE not in inputs
+    assert set(inputs) == {STATE} | cameras
+    assert inputs[STATE] == {"type": "STATE", "shape": list(recorded[STATE]["shape"])}
+    for name in cameras:
+        height, width, channels = recorded[name]["shape"]
+        assert inputs[name] == {"type": "VISUAL", "shape": [channels, height, width]}

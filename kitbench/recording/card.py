@@ -43,6 +43,27 @@ def _describe(name: str) -> str:
     return "camera image" if kind == "rgb" else ""
 
 
+# An entry of `observation.state` whose standard deviation over the whole dataset is below this (rad or m) is a
+# joint the robot holds still, measured with its servo jitter. LeRobot's MEAN_STD normalisation divides by that
+# jitter: on Fetch's LiftPegUpright data (head, torso and base held, std 7e-6 to 2.6e-4) a trained ACT saw those
+# entries at up to 5,464 standard deviations once it drove the robot itself, and scored 8%; with the state left
+# unnormalised, the same data, config and steps scored 80% (docs/learnability.md).
+STILL_STD = 1e-3
+
+
+def still_entries(root: Path) -> list[str]:
+    """The `observation.state` entries the demonstrations hold still (std below `STILL_STD`), by name."""
+    stats_path = root / "meta" / "stats.json"
+    if not stats_path.is_file():
+        return []
+    std = json.loads(stats_path.read_text()).get("observation.state", {}).get("std")
+    info = json.loads((root / "meta" / "info.json").read_text())
+    names = info["features"].get("observation.state", {}).get("names") or []
+    if std is None or len(names) != len(std):
+        return []
+    return [name for name, value in zip(names, std, strict=True) if value < STILL_STD]
+
+
 def record_command(recording: dict, episodes: int) -> str:
     """The command that makes this dataset again: the one it was made by when kitbench stored it (`kitbench eval
     --save-dataset`), else `kitbench record` with its settings as flags."""
@@ -116,6 +137,13 @@ def card_text(root: Path) -> str:
         "Per-episode seed, success and task configuration: `meta/kitbench_episodes.jsonl`; the recording's settings: "
         "`meta/kitbench_recording.json`; one MCAP log per episode (Foxglove) in `mcap/` when recorded."
     )
+    still = ", ".join(f"`{name}`" for name in still_entries(root))
+    held = (
+        f"- Held still: `observation.state` entries {still} vary by less than {STILL_STD:g} (std) over the whole "
+        "dataset. Normalising them by mean and std (LeRobot's MEAN_STD) turns their jitter into inputs of hundreds "
+        'of standard deviations when a policy drives the robot: train with `"normalization_mapping": {"STATE": '
+        '"IDENTITY"}` or leave them out.'
+    )
     description = "\n".join(
         [
             heading,
@@ -124,6 +152,7 @@ def card_text(root: Path) -> str:
             f"- Episodes: {len(episodes)} ({info['total_frames']} frames), {successes} successful; seeds {seed_range}",
             f"- Made by: {how}",
             f"- Made again by: `{record_command(recording, len(episodes))}`",
+            *([held] if still else []),
             f"- {files}",
             "",
             *table,
