@@ -5,7 +5,9 @@ lead, against the expert's own, phase by phase?
 
 For each seed the task's expert runs the episode (in the control mode the checkpoint was trained in, with the
 robot it was trained on). At every step the checkpoint predicts its action chunk from the same observation, and
-the first action of that chunk is compared with the expert's: both are turned into the joint targets they would
+the first action of that chunk is compared with the expert's (Diffusion, which predicts from its last
+`n_obs_steps` observations, is run re-planning every step on the expert's states, so each of its actions is a
+fresh prediction, as AssemblingKits' config uses it): both are turned into the joint targets they would
 set from the measured state (`Controller.preview`, so every mode compares alike) and those into TCP poses. Per
 expert phase it prints the frames, the TCP's horizontal and vertical distance between the two (median and p90,
 mm), the angle between their orientations (median, degrees), the difference of their gripper commands (median,
@@ -13,7 +15,7 @@ of the -1..1 range), and how far the expert's own TCP target moves per step ther
 
 Only the policy's error on states from the demonstrations' distribution is measured: no error compounds, so an
 error seen here is the fit's own. Seeds 0.. are the recipes' training seeds, the suites start at 1,000,000.
-ACT checkpoints only (`LeRobotPolicy.action_chunk`). Exit status: 2 for a bad argument.
+Exit status: 2 for a bad argument.
 """
 
 from __future__ import annotations
@@ -57,6 +59,14 @@ def measure(checkpoint: str, task: str, seeds: range) -> dict:
     from kitbench.registration import make_env
 
     policy = LeRobotPolicy(checkpoint)
+    if policy.config.type == "act":
+
+        def predict(obs):
+            return policy.action_chunk(obs)[0]  # the chunk from this observation alone, nothing queued
+    else:
+        # a policy with an observation window: one action a prediction, so the next prediction sees the next state
+        policy = LeRobotPolicy(checkpoint, options={"n_action_steps": 1})
+        predict = policy.act
     needs = policy.requirements()
     env = make_env(
         task,
@@ -76,7 +86,7 @@ def measure(checkpoint: str, task: str, seeds: range) -> dict:
             previous = None
             while True:
                 label = expert.act(obs)
-                predicted = policy.action_chunk(obs)[0]
+                predicted = predict(obs)
                 qpos = u.robot.arm_qpos()
                 kinematics = u.controller.kinematics
                 want = kinematics.tcp_pose(u.controller.preview(label[:n_arm], qpos))

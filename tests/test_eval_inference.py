@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import subprocess
 
 import gymnasium as gym
@@ -226,3 +227,19 @@ def test_policy_options_need_a_policy_with_settings(tmp_path):
     with pytest.raises(KitbenchError, match="need a lerobot:<checkpoint> policy; 'expert' has no settings"):
         run_eval(config, progress=False)
     assert not (tmp_path / "r").exists()
+
+
+def test_open_loop_bench_probes_a_diffusion_checkpoint_on_every_expert_state(checkpoints):
+    """bench/open_loop.py on Diffusion (an observation window, no chunk from one observation): re-planned every
+    step on the expert's states, one comparison per step of the expert's own episode, every figure a distance."""
+    from bench.open_loop import measure, summarize
+    from kitbench.policies.expert import ExpertPolicy
+    from kitbench.recording.rollout import run_episode
+
+    measured = measure(str(checkpoints["LiftPegUpright-v1", "state", "diffusion"]), "LiftPegUpright-v1", range(1))
+    plain = run_episode(gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_ee_delta_pose"), ExpertPolicy(), 0)
+    rows = summarize(measured)
+    assert sum(r["frames"] for r in rows) == plain.length
+    assert {"approach", "grasp", "swing"} <= {r["phase"] for r in rows}
+    for r in rows:
+        assert all(math.isfinite(x) and x >= 0 for x in (*r["horizontal_mm"], *r["vertical_mm"], r["rotation_deg"]))
