@@ -293,8 +293,7 @@ def test_still_entries_reads_the_state_std_against_the_threshold(tmp_path):
     (tmp_path / "meta").mkdir()
     names = ["a", "b", "c"]
     info = {"features": {"observation.state": {"names": names, "shape": [3]}}}
-    (tmp_path / "meta" / "info.json").write_text(json.dumps(info))
-    assert still_entries(tmp_path) == []  # no stats yet: nothing claimed
+    assert still_entries(tmp_path, info) == []  # no stats yet: nothing claimed
     stats = {"observation.state": {"std": [0.2, STILL_STD / 2, STILL_STD]}}
     (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
-    assert still_entries(tmp_path) == ["b"]
+    assert still_entries(tmp_path, info) == ["b"]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from kitbench.envs.features import STATE
-from kitbench.recording.card import STILL_STD
+from kitbench.recording.card import held_still
 from kitbench.recording.recorder import load_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def _shortest_demo(
 ) -> tuple[int, tuple[str, ...]]:
     """The shortest successful episode among a recipe's first seeds, recorded as state (cameras do not change
     the physics, so an image recipe's episodes are as long), and the `observation.state` entries those episodes
-    hold still (`kitbench.recording.card.still_entries`' rule)."""
+    hold still (`kitbench.recording.card.held_still`)."""
     from kitbench.policies.expert import ExpertPolicy
     from kitbench.recording.rollout import run_episode
     from kitbench.registration import make_env
@@ -79,8 +79,7 @@ def _shortest_demo(
             states += [frame[STATE] for frame in episode.frames]
     env.close()
     assert lengths, f"the {task} expert succeeded in none of seeds {first_seed}..{first_seed + LENGTH_SEEDS - 1}"
-    std = np.std(np.stack(states), axis=0)
-    return min(lengths), tuple(name for name, value in zip(names, std, strict=True) if value < STILL_STD)
+    return min(lengths), tuple(held_still(names, list(np.std(np.stack(states), axis=0))))
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])

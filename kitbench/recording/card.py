@@ -51,17 +51,21 @@ def _describe(name: str) -> str:
 STILL_STD = 1e-3
 
 
-def still_entries(root: Path) -> list[str]:
-    """The `observation.state` entries the demonstrations hold still (std below `STILL_STD`), by name."""
+def held_still(names: list[str], std: list[float]) -> list[str]:
+    """The names whose standard deviation is below `STILL_STD`: the entries a robot holds still."""
+    return [name for name, value in zip(names, std, strict=True) if value < STILL_STD]
+
+
+def still_entries(root: Path, info: dict) -> list[str]:
+    """The `observation.state` entries the dataset at `root` (its `meta/info.json` read as `info`) holds still."""
     stats_path = root / "meta" / "stats.json"
     if not stats_path.is_file():
         return []
     std = json.loads(stats_path.read_text()).get("observation.state", {}).get("std")
-    info = json.loads((root / "meta" / "info.json").read_text())
     names = info["features"].get("observation.state", {}).get("names") or []
     if std is None or len(names) != len(std):
         return []
-    return [name for name, value in zip(names, std, strict=True) if value < STILL_STD]
+    return held_still(names, std)
 
 
 def record_command(recording: dict, episodes: int) -> str:
@@ -137,7 +141,7 @@ def card_text(root: Path) -> str:
         "Per-episode seed, success and task configuration: `meta/kitbench_episodes.jsonl`; the recording's settings: "
         "`meta/kitbench_recording.json`; one MCAP log per episode (Foxglove) in `mcap/` when recorded."
     )
-    still = ", ".join(f"`{name}`" for name in still_entries(root))
+    still = ", ".join(f"`{name}`" for name in still_entries(root, info))
     held = (
         f"- Held still: `observation.state` entries {still} vary by less than {STILL_STD:g} (std) over the whole "
         "dataset. Normalising them by mean and std (LeRobot's MEAN_STD) turns their jitter into inputs of hundreds "
