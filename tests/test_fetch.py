@@ -279,7 +279,11 @@ def test_the_dataset_card_names_the_joints_a_fetch_expert_holds_still(tmp_path):
         task="LiftPegUpright-v1", episodes=2, out=out, control_mode="pd_joint_pos", robot="fetch", mcap=False
     )
     record(config, progress=False)
-    held = [line for line in (out / "README.md").read_text().splitlines() if line.startswith("- Held still")]
+    held = [
+        line
+        for line in (out / "README.md").read_text().splitlines()
+        if line.startswith("- Held still: `observation.state`")
+    ]
     assert len(held) == 1, held
     body = ["head_pan_joint", "head_tilt_joint", "torso_lift_joint", "base_x", "base_y", "base_yaw"]
     assert all(f"`{name}`" in held[0] for name in body), held[0]
@@ -296,4 +300,10 @@ def test_still_entries_reads_the_state_std_against_the_threshold(tmp_path):
     assert still_entries(tmp_path, info) == []  # no stats yet: nothing claimed
     stats = {"observation.state": {"std": [0.2, STILL_STD / 2, STILL_STD]}}
     (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
+    assert still_entries(tmp_path, info) == ["b"]
+    # the environment state is read the same way, on its own names and stats (a task constant: std 7e-6)
+    info["features"]["observation.environment_state"] = {"names": ["goal.x", "goal.z"], "shape": [2]}
+    stats["observation.environment_state"] = {"std": [0.05, 7e-6]}
+    (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
+    assert still_entries(tmp_path, info, "observation.environment_state") == ["goal.z"]
     assert still_entries(tmp_path, info) == ["b"]

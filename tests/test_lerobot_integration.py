@@ -126,7 +126,7 @@ def test_mismatched_policy_lists_expected_and_provided(checkpoint):
         run_episode(gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_ee_delta_pos"), policy, seed=0)
     message = str(err.value)
     assert "mismatched: action" in message and "action[8]" in message and "action[4] (pd_ee_delta_pos)" in message
-    with pytest.raises(ValueError, match=r"observation.environment_state\[7\].*observation.environment_state\[53\]"):
+    with pytest.raises(ValueError, match=r"observation.environment_state\[7\].*observation.environment_state\[52\]"):
         run_episode(gym.make("kitbench/AssemblingKits-v1"), policy, seed=0)
 
 

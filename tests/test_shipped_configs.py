@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kitbench.envs.features import STATE
-from kitbench.recording.card import held_still
+from kitbench.envs.features import ENVIRONMENT_STATE, STATE
+from kitbench.recording.card import STILL_CHECKED, held_still
 from kitbench.recording.recorder import load_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,6 +48,10 @@ def test_config_parses_with_lerobot_and_matches_its_recipe(path):
 
 
 LENGTH_SEEDS = 10  # episodes per recipe whose lengths the chunk check reads
+# Initial states whose environment state joins those episodes' frames for the held-still check: a categorical
+# entry (AssemblingKits' shape one-hot) is constant within an episode and 10 episodes do not draw all 20 shapes,
+# while a constant of the task (a goal height) is the same in every initial state too.
+RESET_SEEDS = 100
 
 
 @cache
@@ -59,27 +63,35 @@ def _shortest_demo(
     noise_phases: tuple[str, ...] | None,
     first_seed: int,
     robot: str | None = None,
-) -> tuple[int, tuple[str, ...]]:
+) -> tuple[int, dict[str, tuple[str, ...]]]:
     """The shortest successful episode among a recipe's first seeds, recorded as state (cameras do not change
-    the physics, so an image recipe's episodes are as long), and the `observation.state` entries those episodes
-    hold still (`kitbench.recording.card.held_still`)."""
+    the physics, so an image recipe's episodes are as long), and per state vector (`observation.state`,
+    `observation.environment_state`) the entries those episodes hold still (`kitbench.recording.card.held_still`)."""
     from kitbench.policies.expert import ExpertPolicy
+    from kitbench.recording.features import dataset_features
     from kitbench.recording.rollout import run_episode
     from kitbench.registration import make_env
 
     env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
-    names = list(env.unwrapped.robot_state_names)
-    lengths, states = [], []
+    features = dataset_features(env)
+    names = {key: list(features[key]["names"]) for key in STILL_CHECKED if key in features}
+    lengths, states = [], {key: [] for key in names}
     for seed in range(first_seed, first_seed + LENGTH_SEEDS):
         episode = run_episode(
             env, ExpertPolicy(), seed, settle_steps=settle_steps, action_noise=action_noise, noise_phases=noise_phases
         )
         if episode.success:
             lengths.append(episode.length)
-            states += [frame[STATE] for frame in episode.frames]
+            for key in names:
+                states[key] += [frame[key] for frame in episode.frames]
+    if ENVIRONMENT_STATE in names:
+        for seed in range(first_seed, first_seed + RESET_SEEDS):
+            env.reset(seed=seed)
+            states[ENVIRONMENT_STATE].append(env.unwrapped.environment_state())
     env.close()
     assert lengths, f"the {task} expert succeeded in none of seeds {first_seed}..{first_seed + LENGTH_SEEDS - 1}"
-    return min(lengths), tuple(held_still(names, list(np.std(np.stack(states), axis=0))))
+    std = {key: list(np.std(np.stack(values), axis=0)) for key, values in states.items()}
+    return min(lengths), {key: tuple(held_still(names[key], std[key])) for key in names}
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
@@ -112,8 +124,10 @@ def test_config_fits_the_data_its_recipe_writes(path):
     assert span <= shortest, f"{path.name}: {span} action steps per prediction, shortest demo {shortest}"
     assert policy.n_action_steps <= span
     # entries the demonstrations hold still must not be divided by their jitter (dataset card, "Held still")
-    if still:
-        assert policy.normalization_mapping["STATE"].value == "IDENTITY", f"{path.name}: {still} are held still"
+    for key, entries in still.items():
+        mode = policy.normalization_mapping.get(STILL_CHECKED[key])
+        if entries and mode is not None:
+            assert mode.value == "IDENTITY", f"{path.name}: {key} {entries} are held still, normalised {mode.value}"
 
     state_env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode, robot_uids=recipe.robot)
     try:
@@ -145,7 +159,7 @@ def test_image_configs_read_the_cameras_and_joints_not_the_object_pose(path):
     """lerobot-train feeds a policy every `observation.*` feature unless the config names its inputs, and a
     camera dataset also holds `observation.environment_state` (the objects' poses): an image config that left
     its inputs to lerobot would learn from the pose it is meant to see."""
-    from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, observation_features
+    from kitbench.envs.features import IMAGES, observation_features
     from kitbench.registration import make_env
 
     raw = json.loads(path.read_text())

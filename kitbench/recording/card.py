@@ -14,7 +14,7 @@ import os
 import shlex
 from pathlib import Path
 
-from kitbench.envs.features import POINTCLOUD_PREFIX, modality
+from kitbench.envs.features import ENVIRONMENT_STATE, POINTCLOUD_PREFIX, STATE, modality
 from kitbench.envs.modes import POINTCLOUD
 from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
 
@@ -43,26 +43,32 @@ def _describe(name: str) -> str:
     return "camera image" if kind == "rgb" else ""
 
 
-# An entry of `observation.state` whose standard deviation over the whole dataset is below this (rad or m) is a
-# joint the robot holds still, measured with its servo jitter. LeRobot's MEAN_STD normalisation divides by that
-# jitter: on Fetch's LiftPegUpright data (head, torso and base held, std 7e-6 to 2.6e-4) a trained ACT saw those
-# entries at up to 5,464 standard deviations once it drove the robot itself, and scored 8%; with the state left
-# unnormalised, the same data, config and steps scored 80% (docs/learnability.md).
+# An entry of `observation.state` or `observation.environment_state` whose standard deviation over the whole
+# dataset is below this (rad or m) is a joint the robot holds still, measured with its servo jitter, or a constant
+# of the task (AssemblingKits' goal height once was: std 7e-6, the rounding of lerobot's statistics). LeRobot's
+# MEAN_STD normalisation divides by that spread: on Fetch's LiftPegUpright data (head, torso and base held, std
+# 7e-6 to 2.6e-4) a trained ACT saw those entries at up to 5,464 standard deviations once it drove the robot
+# itself, and scored 8%; with the state left unnormalised, the same data, config and steps scored 80%
+# (docs/learnability.md). A constant is harmless until anything (the `obs_noise` perturbation, a sensor) moves it.
 STILL_STD = 1e-3
+
+# The state vectors the card checks, with the lerobot feature type that a config's normalization_mapping names.
+STILL_CHECKED = {STATE: "STATE", ENVIRONMENT_STATE: "ENV"}
 
 
 def held_still(names: list[str], std: list[float]) -> list[str]:
-    """The names whose standard deviation is below `STILL_STD`: the entries a robot holds still."""
+    """The names whose standard deviation is below `STILL_STD`: the entries a robot (or the task) holds still."""
     return [name for name, value in zip(names, std, strict=True) if value < STILL_STD]
 
 
-def still_entries(root: Path, info: dict) -> list[str]:
-    """The `observation.state` entries the dataset at `root` (its `meta/info.json` read as `info`) holds still."""
+def still_entries(root: Path, info: dict, key: str = STATE) -> list[str]:
+    """The entries of state vector `key` that the dataset at `root` (its `meta/info.json` read as `info`) holds
+    still."""
     stats_path = root / "meta" / "stats.json"
     if not stats_path.is_file():
         return []
-    std = json.loads(stats_path.read_text()).get("observation.state", {}).get("std")
-    names = info["features"].get("observation.state", {}).get("names") or []
+    std = json.loads(stats_path.read_text()).get(key, {}).get("std")
+    names = info["features"].get(key, {}).get("names") or []
     if std is None or len(names) != len(std):
         return []
     return held_still(names, std)
@@ -141,13 +147,14 @@ def card_text(root: Path) -> str:
         "Per-episode seed, success and task configuration: `meta/kitbench_episodes.jsonl`; the recording's settings: "
         "`meta/kitbench_recording.json`; one MCAP log per episode (Foxglove) in `mcap/` when recorded."
     )
-    still = ", ".join(f"`{name}`" for name in still_entries(root, info))
-    held = (
-        f"- Held still: `observation.state` entries {still} vary by less than {STILL_STD:g} (std) over the whole "
-        "dataset. Normalising them by mean and std (LeRobot's MEAN_STD) turns their jitter into inputs of hundreds "
-        'of standard deviations when a policy drives the robot: train with `"normalization_mapping": {"STATE": '
-        '"IDENTITY"}` or leave them out.'
-    )
+    held = [
+        f"- Held still: `{key}` entries {', '.join(f'`{name}`' for name in still)} vary by less than "
+        f"{STILL_STD:g} (std) over the whole dataset. Normalising them by mean and std (LeRobot's MEAN_STD) turns "
+        "their jitter into inputs of hundreds of standard deviations when a policy drives the robot: train with "
+        f'`"normalization_mapping": {{"{kind}": "IDENTITY"}}` or leave them out.'
+        for key, kind in STILL_CHECKED.items()
+        if (still := still_entries(root, info, key))
+    ]
     description = "\n".join(
         [
             heading,
@@ -156,7 +163,7 @@ def card_text(root: Path) -> str:
             f"- Episodes: {len(episodes)} ({info['total_frames']} frames), {successes} successful; seeds {seed_range}",
             f"- Made by: {how}",
             f"- Made again by: `{record_command(recording, len(episodes))}`",
-            *([held] if still else []),
+            *held,
             f"- {files}",
             "",
             *table,
