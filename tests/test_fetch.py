@@ -297,13 +297,15 @@ def test_still_entries_reads_the_state_std_against_the_threshold(tmp_path):
     (tmp_path / "meta").mkdir()
     names = ["a", "b", "c"]
     info = {"features": {"observation.state": {"names": names, "shape": [3]}}}
-    assert still_entries(tmp_path, info) == []  # no stats yet: nothing claimed
+    assert still_entries(tmp_path, info) == {}  # no stats yet: nothing claimed
     stats = {"observation.state": {"std": [0.2, STILL_STD / 2, STILL_STD]}}
     (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
-    assert still_entries(tmp_path, info) == ["b"]
+    assert still_entries(tmp_path, info) == {"observation.state": ["b"]}
     # the environment state is read the same way, on its own names and stats (a task constant: std 7e-6)
     info["features"]["observation.environment_state"] = {"names": ["goal.x", "goal.z"], "shape": [2]}
     stats["observation.environment_state"] = {"std": [0.05, 7e-6]}
     (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
-    assert still_entries(tmp_path, info, "observation.environment_state") == ["goal.z"]
-    assert still_entries(tmp_path, info) == ["b"]
+    assert still_entries(tmp_path, info) == {"observation.state": ["b"], "observation.environment_state": ["goal.z"]}
+    stats["observation.state"]["std"] = [0.2, 0.3, 0.4]  # a vector with nothing held still is left out
+    (tmp_path / "meta" / "stats.json").write_text(json.dumps(stats))
+    assert still_entries(tmp_path, info) == {"observation.environment_state": ["goal.z"]}

@@ -61,17 +61,20 @@ def held_still(names: list[str], std: list[float]) -> list[str]:
     return [name for name, value in zip(names, std, strict=True) if value < STILL_STD]
 
 
-def still_entries(root: Path, info: dict, key: str = STATE) -> list[str]:
-    """The entries of state vector `key` that the dataset at `root` (its `meta/info.json` read as `info`) holds
-    still."""
+def still_entries(root: Path, info: dict) -> dict[str, list[str]]:
+    """Per state vector of `STILL_CHECKED`, the entries that the dataset at `root` (its `meta/info.json` read as
+    `info`) holds still; vectors with none are left out. Reads `meta/stats.json` once."""
     stats_path = root / "meta" / "stats.json"
     if not stats_path.is_file():
-        return []
-    std = json.loads(stats_path.read_text()).get(key, {}).get("std")
-    names = info["features"].get(key, {}).get("names") or []
-    if std is None or len(names) != len(std):
-        return []
-    return held_still(names, std)
+        return {}
+    stats = json.loads(stats_path.read_text())
+    found = {}
+    for key in STILL_CHECKED:
+        std = stats.get(key, {}).get("std")
+        names = info["features"].get(key, {}).get("names") or []
+        if std is not None and len(names) == len(std) and (still := held_still(names, std)):
+            found[key] = still
+    return found
 
 
 def record_command(recording: dict, episodes: int) -> str:
@@ -151,9 +154,8 @@ def card_text(root: Path) -> str:
         f"- Held still: `{key}` entries {', '.join(f'`{name}`' for name in still)} vary by less than "
         f"{STILL_STD:g} (std) over the whole dataset. Normalising them by mean and std (LeRobot's MEAN_STD) turns "
         "their jitter into inputs of hundreds of standard deviations when a policy drives the robot: train with "
-        f'`"normalization_mapping": {{"{kind}": "IDENTITY"}}` or leave them out.'
-        for key, kind in STILL_CHECKED.items()
-        if (still := still_entries(root, info, key))
+        f'`"normalization_mapping": {{"{STILL_CHECKED[key]}": "IDENTITY"}}` or leave them out.'
+        for key, still in still_entries(root, info).items()
     ]
     description = "\n".join(
         [
