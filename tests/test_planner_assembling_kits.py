@@ -86,3 +86,34 @@ def test_chosen_turn_reaches_an_equivalent_goal_yaw_within_joint7_limits(env, se
     assert lo < q7_grasp < hi and lo < q7_grasp - rotation < hi
     if u.shape.symmetry > 0:  # never more rotation than the symmetry makes necessary, plus a half turn at most
         assert abs(rotation) <= u.shape.symmetry / 2 + math.pi + 1e-9
+
+
+# -- bench/grasp_misses.py: where a policy closes the hand, against the expert --------------------------------------
+def test_grasp_misses_reads_where_the_hand_closes():
+    """The expert against itself closes the same way, clear of the obstacles, and the hand then holds the shape at
+    about the width that direction needs; a policy that never closes the hand reads as such."""
+    from bench.grasp_misses import measure
+
+    (row,) = measure("expert", [1_000_000], None)
+    assert row["policy"] == row["expert"]
+    close = row["expert"]
+    assert close["clearance_mm"] > 10.0 and close["success"]
+    assert 20.0 < close["hand_above_mm"] < 35.0 and close["offset_xy_mm"] < 3.0
+    assert abs(close["opening_after_mm"] - close["needs_mm"]) < 6.0  # squeezing the shape, not the air
+    (idle,) = measure("zero", [1_000_000], "pd_ee_delta_pose")
+    assert idle["policy"] is None and idle["expert"] == close
+
+
+def test_grasp_misses_refuses_what_it_cannot_replay(tmp_path, capsys):
+    from bench.grasp_misses import main
+
+    report = tmp_path / "report.json"
+    report.write_text('{"task": "AssemblingKits-v1", "failure_categories": {"dropped": 1}, "per_episode": []}')
+    assert main(["--policy", "expert", "--report", str(report), "--failure", "sideways"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "'sideways'" in err and "never_grasped" in err
+    assert main(["--policy", "expert", "--report", str(report)]) == 2  # no episode ended never_grasped
+    report.write_text('{"task": "LiftPegUpright-v1", "per_episode": []}')
+    assert main(["--policy", "expert", "--report", str(report)]) == 2
+    assert "LiftPegUpright-v1" in capsys.readouterr().err
+    assert main(["--policy", "expert", "--seeds", "1,x"]) == 2

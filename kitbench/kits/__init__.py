@@ -2,6 +2,7 @@
 
 shapes    - the 20 kit shapes: outlines, exact convex pieces, symmetry, grasp widths
 clearance - pocket clearance per shape, from the largest yaw a shape may fit its pocket at
+fingers   - where the open fingertips come down around a shape, and how clear of obstacles they are
 board     - the kit board with its pockets: collision mesh, exact convex pieces, visual mesh
 episodes  - the versioned episode file format, its generator and validating loader
 convex    - polygon -> convex pieces (constrained Delaunay + Hertel-Mehlhorn), prism extrusion, meshes

@@ -42,8 +42,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from shapely import affinity
-from shapely.geometry import Polygon, box
 
 from kitbench.geometry import (
     axis_angle_to_matrix,
@@ -52,18 +50,13 @@ from kitbench.geometry import (
     wrap_angle,
 )
 from kitbench.kits import shape_geometry
+from kitbench.kits.fingers import CLEAR_ENOUGH, fingertip_clearance, pick_obstacles, seated_outlines
 from kitbench.kits.shapes import grasp_width_at
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
 from kitbench.planning.planner import PhasePlanner
 from kitbench.planning.poses import HAND_DOWN, make_pose, rot_z
 from kitbench.tasks.assembling_kits import yaw_error
 
-FINGERTIP_BELOW_TCP = 0.0097  # m, the finger pads' lowest point under the TCP (Panda collision boxes)
-# The open fingertips' lowest boxes (Panda collision geometry, TCP frame): 4.0 to 5.5 cm out along the closing
-# direction, 1.8 cm across it. The fingers open fully before every grasp, so this is where they come down.
-FINGERTIP_CENTER = 0.0476  # m from the TCP along the closing direction
-FINGER_THICKNESS = 0.016  # m, along the closing direction
-FINGER_WIDTH = 0.018  # m, across it
 MAX_OPENING = 0.07  # m, the widest grasp the planner uses (the Panda opens 8 cm)
 CLOSING_SAMPLES = 36  # closing directions tried, over 180 degrees
 
@@ -76,20 +69,6 @@ def closing_widths(shape_id: int) -> tuple[tuple[float, float], ...]:
     return tuple((float(a), grasp_width_at(outline, float(a))) for a in angles)
 
 
-def finger_footprints(center, angle: float, swept: bool = False) -> list[Polygon]:
-    """Where the two open fingertips come down (table plane) for a grasp closing along `angle`; `swept`: all they
-    pass over while they close, from there in to `center` (the shape's own outline lies in between)."""
-    u = np.array([math.cos(angle), math.sin(angle)])
-    outer = FINGERTIP_CENTER + FINGER_THICKNESS / 2
-    inner = 0.0 if swept else FINGERTIP_CENTER - FINGER_THICKNESS / 2
-    out = []
-    for sign in (-1.0, 1.0):
-        c = np.asarray(center[:2]) + sign * (outer + inner) / 2 * u
-        pad = box(-(outer - inner) / 2, -FINGER_WIDTH / 2, (outer - inner) / 2, FINGER_WIDTH / 2)
-        out.append(affinity.translate(affinity.rotate(pad, angle, origin=(0, 0), use_radians=True), c[0], c[1]))
-    return out
-
-
 @dataclass(frozen=True)
 class AssemblingKitsPlannerConfig:
     """The expert's tunables."""
@@ -99,7 +78,7 @@ class AssemblingKitsPlannerConfig:
     carry_clearance: float = 0.03  # shape bottom above the board top while carried, m
     release_height: float = 0.0005  # shape bottom above the pocket floor when the fingers open, m
     joint7_margin: float = 0.1  # rad kept from joint 7's limits
-    clear_enough: float = 0.012  # m between a fingertip and an obstacle beyond which more does not matter
+    clear_enough: float = CLEAR_ENOUGH  # m between a fingertip and an obstacle beyond which more does not matter
     align_position_tolerance: float = 0.0015  # m: re-aim over the slot when the shape is further off
     align_yaw_tolerance: float = math.radians(0.75)  # rad: or turned further than this
     # ...or further off than this fraction of its pocket's clearance (0.69-2 mm per side, kits/clearance.py): a turn
@@ -234,36 +213,6 @@ class AssemblingKitsPlanner(PhasePlanner):
             return self._move(self._last(), target, 0.0, OPEN, "retreat")
         return self._fail(self.failure or "done") if finished != "retreat" else hold(self._last(), 1, phase="retreat")
 
-    def _seated_shapes(self) -> list[Polygon]:
-        """Outlines of the shapes seated in the kit: 2 cm proud of the board, fingertips must not come down on them."""
-        episode = self.env.episode
-        return [
-            affinity.translate(
-                affinity.rotate(
-                    shape_geometry(episode.slots[i].shape_id).outline,
-                    episode.slots[i].yaw,
-                    origin=(0, 0),
-                    use_radians=True,
-                ),
-                episode.slots[i].pos[0],
-                episode.slots[i].pos[1],
-            )
-            for i in episode.obj_in_place
-        ]
-
-    def _pick_obstacles(self, obj: np.ndarray) -> list[Polygon]:
-        """Around the shape where it lies: the board's edge for a shape on the table (the fingertips go below the
-        board top), the seated shapes for a shape on the board."""
-        board = self.env.episodes.board
-        if obj[2, 3] < board.top / 2:
-            return [box(-board.size[0] / 2, -board.size[1] / 2, board.size[0] / 2, board.size[1] / 2)]
-        return self._seated_shapes()
-
-    @staticmethod
-    def _clearance(center, angle: float, obstacles: list[Polygon], swept: bool = False) -> float:
-        pads = finger_footprints(center, angle, swept)
-        return min((p.distance(o) for p in pads for o in obstacles), default=1.0)
-
     def _choose_grasp(self, start: Step) -> tuple[float, float]:
         """(hand turn to the grasp, shape turn to the goal), both signed.
 
@@ -278,17 +227,19 @@ class AssemblingKitsPlanner(PhasePlanner):
         hand_yaw = planar_yaw(start.tcp[:3, :3])
         delta = wrap_angle(self.env.goal_rot - obj_yaw)
         rotations = signed_yaw_options(delta, shape.symmetry)
-        pick_obstacles, seated = self._pick_obstacles(obj), self._seated_shapes()
+        episode = self.env.episode
+        around = pick_obstacles(episode, self.env.episodes.board, float(obj[2, 3]))
+        seated = seated_outlines(episode)
         goal_xy = self.env.goal_pos[:2]
         best = None
         for angle, opening in closing_widths(shape.shape_id):
             if opening > MAX_OPENING:
                 continue
             closing = obj_yaw + angle
-            pick_clear = min(self._clearance(obj[:2, 3], closing, pick_obstacles, swept=True), self.cfg.clear_enough)
+            pick_clear = min(fingertip_clearance(obj[:2, 3], closing, around, swept=True), self.cfg.clear_enough)
             base = wrap_angle(closing + math.pi / 2 - hand_yaw)  # hand yaw whose fingers close along `closing`
             for rotation in rotations:
-                goal_clear = min(self._clearance(goal_xy, closing + rotation, seated), self.cfg.clear_enough)
+                goal_clear = min(fingertip_clearance(goal_xy, closing + rotation, seated), self.cfg.clear_enough)
                 clear = round(min(pick_clear, goal_clear), 3)
                 for m in (-2, -1, 0, 1, 2):
                     turn = base + m * math.pi
