@@ -59,8 +59,8 @@ def seated_outlines(episode) -> list[Polygon]:
 
 
 def pick_obstacles(episode, board, shape_z: float) -> list[Polygon]:
-    """Around the shape where it lies (`shape_z`: its centre's height): the board's edge for a shape on the table
-    (the fingertips go below the board top), the seated shapes for a shape on the board."""
+    """Around the shape where it lies (`shape_z`: the height of its origin, its bottom face): the board's edge for a
+    shape on the table (the fingertips go below the board top), the seated shapes for a shape on the board."""
     if shape_z < board.top / 2:
         return [box(-board.size[0] / 2, -board.size[1] / 2, board.size[0] / 2, board.size[1] / 2)]
     return seated_outlines(episode)
