@@ -154,8 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         if not seeds:
             raise KitbenchError(f"no episode to replay: {args.report or args.seeds!r} has none ending {args.failure}")
         rows = measure(args.policy, seeds, args.control_mode)
-    except (KitbenchError, FileNotFoundError, json.JSONDecodeError) as exc:
-        print(f"grasp_misses: error: {exc}", file=sys.stderr)
+    except (KitbenchError, OSError, ValueError) as exc:  # ValueError: a report that is not JSON, a policy's mismatch
+        print(f"grasp_misses: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     print(f"{args.policy} on {TASK}, first close command per episode:")
     print_rows(rows)
