@@ -35,8 +35,9 @@ def seeds_from(report: str, failure: str, limit: int) -> list[int]:
     data = json.loads(Path(report).read_text())
     if data.get("task") != TASK:
         raise KitbenchError(f"--report {report!r} scores {data.get('task')!r}, not {TASK}")
-    categories = data.get("failure_categories") or {}
-    valid = sorted(set(categories) | {"never_grasped", "dropped", "not_transported", "misaligned", "not_inserted"})
+    from kitbench.tasks.assembling_kits import AssemblingKitsEnv
+
+    valid = sorted(AssemblingKitsEnv.failure_categories)
     if failure not in valid:
         raise KitbenchError(f"--failure {failure!r} is not a failure category; valid choices: {', '.join(valid)}")
     return [e["seed"] for e in data["per_episode"] if e.get("failure") == failure][:limit]
@@ -95,12 +96,10 @@ def measure(policy_spec: str, seeds: list[int], control_mode: str | None) -> lis
     rows = []
     try:
         for seed in seeds:
-            shape = None
-            pair = {}
-            for who, player in (("policy", policy), ("expert", ExpertPolicy())):
-                pair[who] = first_close(env, player, seed)
-                shape = env.unwrapped.shape.name
-            rows.append({"seed": seed, "shape": shape, **pair})
+            pair = {
+                who: first_close(env, player, seed) for who, player in (("policy", policy), ("expert", ExpertPolicy()))
+            }
+            rows.append({"seed": seed, "shape": env.unwrapped.shape.name, **pair})
     finally:
         env.close()
     return rows

@@ -10,10 +10,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from shapely import affinity
 from shapely.geometry import Polygon, box
 
-from kitbench.kits.shapes import shape_geometry
+from kitbench.kits.shapes import place, shape_geometry
 
 # The open fingertips' lowest boxes (Panda collision geometry, TCP frame): 4.0 to 5.5 cm out along the closing
 # direction, 1.8 cm across it. The fingers open fully before every grasp, so this is where they come down.
@@ -33,7 +32,7 @@ def finger_footprints(center, angle: float, swept: bool = False) -> list[Polygon
     for sign in (-1.0, 1.0):
         c = np.asarray(center[:2]) + sign * (outer + inner) / 2 * u
         pad = box(-(outer - inner) / 2, -FINGER_WIDTH / 2, (outer - inner) / 2, FINGER_WIDTH / 2)
-        out.append(affinity.translate(affinity.rotate(pad, angle, origin=(0, 0), use_radians=True), c[0], c[1]))
+        out.append(place(pad, c[0], c[1], angle))
     return out
 
 
@@ -46,16 +45,8 @@ def fingertip_clearance(center, angle: float, obstacles: list[Polygon], swept: b
 
 def seated_outlines(episode) -> list[Polygon]:
     """Outlines of the shapes seated in the kit: 2 cm proud of the board, fingertips must not come down on them."""
-    return [
-        affinity.translate(
-            affinity.rotate(
-                shape_geometry(episode.slots[i].shape_id).outline, episode.slots[i].yaw, origin=(0, 0), use_radians=True
-            ),
-            episode.slots[i].pos[0],
-            episode.slots[i].pos[1],
-        )
-        for i in episode.obj_in_place
-    ]
+    slots = [episode.slots[i] for i in episode.obj_in_place]
+    return [place(shape_geometry(s.shape_id).outline, s.pos[0], s.pos[1], s.yaw) for s in slots]
 
 
 def pick_obstacles(episode, board, shape_z: float) -> list[Polygon]:

@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import sapien
 from sapien import physx
-from shapely import affinity
 from shapely.geometry import box as shapely_box
 
 from kitbench.envs.grasp import GraspHistory
@@ -29,7 +28,7 @@ from kitbench.envs.observations import pose7
 from kitbench.envs.tabletop import TabletopEnv
 from kitbench.errors import KitbenchError
 from kitbench.geometry import planar_yaw, quat_to_matrix, yaw_quat
-from kitbench.kits import NUM_SHAPES, Episode, EpisodeSet, load_episodes, shape_geometry
+from kitbench.kits import NUM_SHAPES, Episode, EpisodeSet, load_episodes, place, shape_geometry
 from kitbench.registration import register_env
 from kitbench.sim.actors import build_convex_actor, build_static_mesh_actor
 from kitbench.sim.cameras import CameraSpec
@@ -288,7 +287,7 @@ class AssemblingKitsEnv(TabletopEnv):
         for _ in range(500):
             x, y = rng.uniform(*SPAWN_X), rng.uniform(*SPAWN_Y)
             yaw = rng.uniform(-math.pi, math.pi)
-            placed = affinity.translate(affinity.rotate(outline, yaw, origin=(0, 0), use_radians=True), x, y)
+            placed = place(outline, x, y, yaw)
             if any(placed.intersects(p) for p in pockets):
                 continue
             if inner.contains(placed):
