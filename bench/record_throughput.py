@@ -1,10 +1,11 @@
 """Recording throughput of `kitbench record` per executor: `python bench/record_throughput.py [options]`.
 
-Options: `--task T`, `--episodes N` (per cell, 40), and filters on the cells: `--obs state,rgb` (`--no-rgb` when
-there is no Vulkan device), `--executor local,ray`, `--workers 1,2`, `--mcap on,off` (default on only: the off
-cells double the run); `--shard-episodes N` (10: each multi-worker cell is recorded again with shards of N
-episodes, `--shard-episodes` of `kitbench record`; 0 skips them); `--ceiling-episodes N` (0 skips the commit
-ceiling), `--ceiling-sample K`, `--convert-episodes N` (200; 0 skips the conversion).
+Options: `--task T`, `--episodes N` (per cell, 40), and filters on the cells: `--obs state,rgb,rgb-images`
+(`rgb-images`: rgb stored as PNG images, `--rgb-storage images`; `--no-rgb` when there is no Vulkan device),
+`--executor local,ray`, `--workers 1,2`, `--mcap on,off` (default on only: the off cells double the run);
+`--shard-episodes N` (10: each multi-worker cell is recorded again with shards of N episodes, `--shard-episodes` of
+`kitbench record`; 0 skips them); `--ceiling-episodes N` (0 skips the commit ceiling), `--ceiling-sample K`,
+`--convert-episodes N` (200; 0 skips the conversion).
 
 Records N expert episodes per cell into a temporary folder, for every combination of the filters, and prints
 episodes/min, frames/s and MiB per episode, all measured in one run (the machine is shared; compare ratios, not
@@ -61,11 +62,13 @@ def cell(
     task: str, episodes: int, obs_mode: str, mcap: bool, executor: str, workers: int, shard_episodes: int = 0
 ) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
+    obs_mode, _, storage = obs_mode.partition("-")  # "rgb-images": rgb stored as images (--rgb-storage)
     config = RecordConfig(
         task=task,
         episodes=episodes,
         out=folder / "ds",
         obs_mode=obs_mode,
+        rgb_storage=storage or "video",
         mcap=mcap,
         workers=workers,
         executor=executor,
@@ -161,7 +164,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="LiftPegUpright-v1")
     parser.add_argument("--episodes", type=int, default=40, help="episodes per cell")
-    parser.add_argument("--obs", type=names(("state", "rgb")), default=["state", "rgb"], help="state,rgb")
+    parser.add_argument(
+        "--obs",
+        type=names(("state", "rgb", "rgb-images")),
+        default=["state", "rgb"],
+        help="state,rgb,rgb-images (rgb stored as PNG images, --rgb-storage images)",
+    )
     parser.add_argument("--no-rgb", action="store_true", help="skip the camera cells (no Vulkan device)")
     parser.add_argument("--executor", type=names(("local", "ray")), default=None, help="local,ray (default both)")
     parser.add_argument("--workers", type=counts, default=[1, 2], help="worker counts, e.g. 1,2")
@@ -197,7 +205,7 @@ def main() -> None:
     if ray_start is not None:
         print(f"Ray instance started once for the run in {ray_start:.1f} s (not in any cell's time)")
     print(
-        f"{'obs':<6} {'mcap':<5} {'executor':<13} {'workers':>7} {'episodes/min':>13} {'frames/s':>9} "
+        f"{'obs':<10} {'mcap':<5} {'executor':<13} {'workers':>7} {'episodes/min':>13} {'frames/s':>9} "
         f"{'1st ep s':>9} {'steady/min':>11} {'MiB/episode':>12} {'Ray overhead':>13}"
     )
     for obs in obs_modes:
@@ -210,7 +218,7 @@ def main() -> None:
                     local = results.get((obs, mcap, "local", workers))
                     overhead = 1 - r["eps_min"] / local["eps_min"] if executor == "ray" and local else math.nan
                     print(
-                        f"{obs:<6} {'on' if mcap else 'off':<5} {executor_label(executor, workers):<13} {workers:>7} "
+                        f"{obs:<10} {'on' if mcap else 'off':<5} {executor_label(executor, workers):<13} {workers:>7} "
                         f"{r['eps_min']:>13.1f} {r['fps']:>9.0f} {r['first_s']:>9.1f} {r['steady']:>11.1f} "
                         f"{r['mib_ep']:>12.2f} {_percent(overhead) if executor == 'ray' else '':>13}",
                         flush=True,
@@ -222,7 +230,7 @@ def main() -> None:
                         )
                         label = executor_label(executor, workers) + "+shards"
                         print(
-                            f"{obs:<6} {'on' if mcap else 'off':<5} {label:<13} "
+                            f"{obs:<10} {'on' if mcap else 'off':<5} {label:<13} "
                             f"{workers:>7} {sharded['eps_min']:>13.1f} {sharded['fps']:>9.0f} {'–':>9} {'–':>11} "
                             f"{sharded['mib_ep']:>12.2f} {'':>13}   shards/one writer "
                             f"{sharded['eps_min'] / r['eps_min']:.2f}",
@@ -273,10 +281,13 @@ def print_ratios(results: dict, obs_modes: list, mcaps: list, executors: list, w
                 w = workers[0]
                 ratio = results[obs, True, executor, w]["eps_min"] / results[obs, False, executor, w]["eps_min"]
                 lines.append(f"  {obs}, {executor}, {w} worker(s): mcap on/off {ratio:.2f}")
-    if len(obs_modes) == 2:
-        executor, mcap, w = executors[0], mcaps[0], workers[0]
-        ratio = results["rgb", mcap, executor, w]["eps_min"] / results["state", mcap, executor, w]["eps_min"]
-        lines.append(f"  rgb/state ({executor}, {w} worker(s), mcap {'on' if mcap else 'off'}) {ratio:.2f}")
+    executor, mcap = executors[0], mcaps[0]
+    for w in workers:
+        tag = f"({executor}, {w} worker(s), mcap {'on' if mcap else 'off'})"
+        for top, bottom in (("rgb", "state"), ("rgb-images", "rgb")):
+            if top in obs_modes and bottom in obs_modes:
+                ratio = results[top, mcap, executor, w]["eps_min"] / results[bottom, mcap, executor, w]["eps_min"]
+                lines.append(f"  {top}/{bottom} {tag} {ratio:.2f}")
     if lines:
         print("ratios (episodes/min):")
         print("\n".join(lines))

@@ -1,6 +1,15 @@
+import atexit
 import os
+import shutil
+import tempfile
 
 import pytest
+
+# kitbench's frame cache (kitbench.training.frames) in a folder of the test run's own, set before any test module
+# copies the environment for the lerobot commands it runs
+if "KITBENCH_FRAME_CACHE" not in os.environ:
+    os.environ["KITBENCH_FRAME_CACHE"] = tempfile.mkdtemp(prefix="kitbench-test-frames-")
+    atexit.register(shutil.rmtree, os.environ["KITBENCH_FRAME_CACHE"], True)
 
 
 def _vulkan_available() -> bool:

@@ -87,6 +87,8 @@ def record_command(recording: dict, episodes: int) -> str:
         flags += ["--control-mode", recording["control_mode"]]
         if recording.get("pointcloud_points") is not None:
             flags += ["--pointcloud-points", str(recording["pointcloud_points"])]
+        if recording.get("rgb_storage"):
+            flags += ["--rgb-storage", recording["rgb_storage"]]
         return shlex.join([*flags, "--out", "<folder>"])
     flags = ["kitbench", "record", "--task", recording["task"], "--episodes", str(episodes)]
     flags += ["--seed", str(recording["seed"]), "--obs-mode", recording["obs_mode"]]
@@ -105,6 +107,8 @@ def record_command(recording: dict, episodes: int) -> str:
         flags += ["--reward-mode", recording["reward_mode"]]
     if recording.get("pointcloud_points") is not None:
         flags += ["--pointcloud-points", str(recording["pointcloud_points"])]
+    if recording.get("rgb_storage"):
+        flags += ["--rgb-storage", recording["rgb_storage"]]
     if recording.get("label"):
         flags += ["--label", recording["label"]]
     return shlex.join([*flags, "--out", "<folder>"])

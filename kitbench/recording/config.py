@@ -14,6 +14,7 @@ from kitbench.envs.modes import IMAGE_OBS_MODES, POINTCLOUD, REWARD_MODES, camer
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE
+from kitbench.recording.features import RGB_STORAGES
 from kitbench.recording.noise import check_noise_scale
 from kitbench.registration import canonical_task, task_entry
 from kitbench.settings import check_seed, read_settings
@@ -65,6 +66,8 @@ class RecordConfig:
     # Points stored per frame by obs_mode pointcloud (`observation.pointcloud.*`), sampled from the env's fused
     # cloud with the episode's seed (kitbench.envs.pointcloud).
     pointcloud_points: int = DEFAULT_POINTS
+    # How rgb frames are stored (kitbench.recording.features.RGB_STORAGES): h264 video or lossless PNG images.
+    rgb_storage: str = "video"
     # Who labels each frame's `action`: None, the policy that acts; "expert", the task's expert, asked at every
     # state the policy reaches (DAgger), while `executed_action` keeps what the policy did.
     label: str | None = None
@@ -111,6 +114,8 @@ class RecordConfig:
         identity = {k: getattr(self, k) for k in settings}
         if self.obs_mode == POINTCLOUD:  # recordings of other modes read back without it, as before it existed
             identity["pointcloud_points"] = self.pointcloud_points
+        if self.obs_mode != "state":  # recordings made before the option stored video (RECORDED_BEFORE)
+            identity["rgb_storage"] = self.rgb_storage
         if self.label is not None:  # likewise: a recording without labels reads back None
             identity["label"] = self.label
         if self.source is not None:
@@ -120,6 +125,8 @@ class RecordConfig:
         return {**identity, "kitbench_version": kitbench.__version__}
 
 
+# What a setting missing from an older recording's saved settings meant when it was recorded.
+RECORDED_BEFORE = {"rgb_storage": "video"}
 RECIPE_KEYS = {f.name for f in dataclasses.fields(RecordConfig)}
 RECIPE_TABLE = "record"
 OBS_MODES_RECORDABLE = ("state", *IMAGE_OBS_MODES)
@@ -152,6 +159,8 @@ def validate(config: RecordConfig) -> None:
     _check_label(config)
     if not _is_count(config.pointcloud_points):
         raise KitbenchError(f"pointcloud_points must be a positive integer, got {config.pointcloud_points!r}")
+    if config.rgb_storage not in RGB_STORAGES:
+        raise KitbenchError(f"unknown rgb_storage {config.rgb_storage!r}; valid choices: {', '.join(RGB_STORAGES)}")
     check_noise_scale(config.action_noise)
     _check_noise_phases(config)
     if (
@@ -354,7 +363,9 @@ def _check_output(config: RecordConfig) -> None:
     if out.exists() and not (out / RECORDING_FILE).is_file():
         raise KitbenchError(f"cannot resume {out}: it is not a kitbench recording ({RECORDING_FILE} missing)")
     for saved in _saved_settings(out):
-        mismatched = {k: (saved.get(k), v) for k, v in config.identity().items() if saved.get(k) != v}
+        identity = config.identity()
+        recorded = {k: saved.get(k, RECORDED_BEFORE.get(k)) for k in identity}
+        mismatched = {k: (recorded[k], v) for k, v in identity.items() if recorded[k] != v}
         if mismatched:
             detail = ", ".join(f"{k}: recorded {a!r}, asked {b!r}" for k, (a, b) in mismatched.items())
             raise KitbenchError(f"cannot resume {out} with different settings ({detail})")

@@ -198,6 +198,7 @@ def convert_config(source_root: Path, out: Path, **settings):
         "reward_mode": s.get("reward_mode", "dense"),
         "settle_steps": s.get("settle_steps", 0),
         "repo_id": s.get("repo_id"),
+        "rgb_storage": s.get("rgb_storage", "video"),
     }
     base.update({k: v for k, v in settings.items() if v is not None})
     return RecordConfig(

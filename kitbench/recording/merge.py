@@ -20,7 +20,7 @@ from pathlib import Path
 from kitbench.errors import KitbenchError
 from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
 from kitbench.recording.card import write_card
-from kitbench.recording.config import check_repo_id
+from kitbench.recording.config import RECORDED_BEFORE, check_repo_id
 from kitbench.recording.journal import journal_root
 
 MCAP_DIR = "mcap"
@@ -64,7 +64,7 @@ def _check_shards(shards: list[Shard]) -> None:
     for shard in shards[1:]:
         keys = sorted((set(first.settings) | set(shard.settings)) - set(PER_SHARD))
         for key in keys:
-            a, b = first.settings.get(key), shard.settings.get(key)
+            a, b = (s.settings.get(key, RECORDED_BEFORE.get(key)) for s in (first, shard))
             if a != b:
                 raise KitbenchError(
                     f"shards {first.root} and {shard.root} were recorded with different {key} ({a!r} and {b!r}); "

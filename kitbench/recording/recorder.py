@@ -59,7 +59,7 @@ def open_writer(config: RecordConfig):
     env = make_recording_env(config)
     try:
         env.reset(seed=config.seed)
-        features = dataset_features(env, config.pointcloud_points)
+        features = dataset_features(env, config.pointcloud_points, config.rgb_storage)
         fps = env.unwrapped.sim_config.control_freq
         robot_uid = env.unwrapped.robot_uid
     finally:

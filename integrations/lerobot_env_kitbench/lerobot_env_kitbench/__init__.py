@@ -1,13 +1,17 @@
 """LeRobot env plugin for kitbench: `--env.type=kitbench` for lerobot-train and lerobot-eval.
 
 lerobot imports every installed distribution named `lerobot_env_*`; importing this one registers the env
-config and the `gym_kitbench/<Task>` gym ids.
+config and the `gym_kitbench/<Task>` gym ids, and has `LeRobotDataset` read kitbench recordings through
+kitbench's reader (`kitbench.training.reader`: the same samples, from memory; `KITBENCH_FAST_READER=0` keeps
+lerobot's own).
 """
 
 import kitbench  # noqa: F401  (registers kitbench's tasks)
+from kitbench.training.reader import install as install_reader
 from lerobot_env_kitbench.config import KitbenchEnvConfig
 from lerobot_env_kitbench.env import LeRobotKitbenchEnv, register_lerobot_envs
 
 register_lerobot_envs()
+install_reader()
 
 __all__ = ["KitbenchEnvConfig", "LeRobotKitbenchEnv", "register_lerobot_envs"]
