@@ -3,7 +3,7 @@
     python bench/learnability.py --task LiftPegUpright-v1 --obs state --demos 50,100,200 --policy act [--steps N]
         [--out outputs/learnability] [--control-mode M] [--action-noise X] [--noise-phases P,Q] [--settle-steps K]
         [--suite-episodes E] [--eval-batch-size B] [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
-        [--policy-option KEY=V1[,V2...] ...]
+        [--policy-option KEY=V1[,V2...] ...] [--train-seeds 1000,2000,3000] [--suites standard,heldout]
 
 For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
 trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above;
@@ -15,12 +15,27 @@ task's success criteria and failure categories. `--policy-option KEY=V1,V2` (rep
 inference settings (`kitbench eval --policy-option`): the checkpoint is trained once and scored once per
 combination of the values, one row each, its tag carrying the options.
 
+`--train-seeds S1,S2,...` trains once per training seed (lerobot-train's `--seed`; default: the config's own) and
+`--suites standard,heldout` scores every checkpoint on each suite (`standard`: eval/suites/<task>.toml, seeds from
+1,000,000; `heldout`: eval/suites/<task>_heldout.toml, from 2,000,000; or a suite file's path). A published figure
+is then a distribution: the run ends with a pooled table per demo count, the success pooled over every training
+seed and suite with its Wilson interval, each suite's pooled rate, the gap between the first two suites with
+Newcombe's interval, and each training seed's rate with their spread.
+
+Before anything runs it prints what the run will do and what it will cost: the recordings, trainings and
+evaluations, this machine's reference workload (`kitbench.training.reference`: seconds of a fixed update loop on the
+training's threads; every row stores it), and the hours that makes from the config's published figures
+(`policies/published.toml`) scaled by the two machines' reference seconds. The run is resumable: a checkpoint
+whose training finished with the same command, and an evaluation report made by the same command, are reused, so
+a killed run started again picks up where it stopped.
+
 Each row is appended to <out>/results.jsonl with the exact commands, the machine and the versions, and
 <out>/<task>_<obs>_success_vs_demos.png plots success against demos for every (policy, tag) found there, latest row
 per demo count: give variants (another config, action noise) their own --tag so their lines stay apart.
 
 Layout: <out>/<task>_<obs>_d<D>[_<tag>]/data (the dataset, record.log) holds what the policies share; each policy
-trains and is scored under <policy>/ (train/, train.log, eval/, eval.log). A dataset recorded by the same command
+trains and is scored under <policy>/ (<policy>_seed<S>/ with --train-seeds: train/, train.log, eval/, eval.log;
+eval_<suite>/ for a suite other than the standard one). A dataset recorded by the same command
 from the same recipe with this kitbench version is reused, so a second policy on the same demos skips recording.
 
 Exit status: 2 for a bad argument (nothing written), 1 when a command fails (it and the tail of its log printed).
@@ -51,14 +66,18 @@ from kitbench.control.controllers import CONTROL_MODES
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.plots import error_bars
 from kitbench.evaluation.runner import REPORT_JSON
+from kitbench.evaluation.significance import newcombe_interval
 from kitbench.evaluation.stats import wilson_interval
 from kitbench.evaluation.suite import load_suite
 from kitbench.metadata import read_recording_settings
 from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
 from kitbench.registration import canonical_task, task_entry
 from kitbench.settings import read_settings
+from kitbench.training.reference import reference_seconds, scaled_minutes
 
 ROOT = Path(__file__).resolve().parents[1]
+PUBLISHED = ROOT / "policies" / "published.toml"
+SUITE_NAMES = {"standard": "{snake}.toml", "heldout": "{snake}_heldout.toml"}
 BIN = Path(sys.executable).parent  # the venv's console scripts, whichever way the script was started
 OBS_CHOICES = ("state", "rgb")
 ENV_OBS_TYPE = {"state": "state", "rgb": "pixels_state"}  # the lerobot env config's name for each
@@ -97,7 +116,7 @@ class Plan:
     policy: str
     config: Path
     recipe: Path
-    suite: Path
+    suites: tuple[tuple[str, Path], ...]  # (name, file): each checkpoint is scored on every one
     out: Path
     steps: int | None
     control_mode: str  # the recording's, which training and evaluation must use too
@@ -112,6 +131,8 @@ class Plan:
     tag: str | None
     # each combination of the --policy-option values, one evaluation of the trained checkpoint each
     option_sets: tuple[tuple[tuple[str, object], ...], ...] = ((),)
+    # lerobot-train's --seed per training; None: the config's own
+    train_seeds: tuple[int | None, ...] = (None,)
 
 
 def parse_sweep(texts: list[str], policy_type: str) -> tuple[tuple[tuple[str, object], ...], ...]:
@@ -155,6 +176,38 @@ def parse_demos(text: str) -> list[int]:
             raise UsageError(f"--demos {text!r}: {part!r} is not a positive integer; give e.g. --demos 50,100,200")
         values.append(int(part))
     return list(dict.fromkeys(values))
+
+
+def parse_train_seeds(text: str | None) -> tuple[int | None, ...]:
+    if text is None:
+        return (None,)
+    seeds = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part.isdigit():
+            raise UsageError(
+                f"--train-seeds {text!r}: {part!r} is not a non-negative integer; give e.g. 1000,2000,3000"
+            )
+        seeds.append(int(part))
+    return tuple(dict.fromkeys(seeds))
+
+
+def parse_suites(text: str, snake: str) -> tuple[tuple[str, Path], ...]:
+    """`standard`, `heldout` (the task's suite files) or suite files' paths, each once."""
+    suites: dict[str, Path] = {}
+    for part in (p.strip() for p in text.split(",")):
+        if part in SUITE_NAMES:
+            path = ROOT / "eval" / "suites" / SUITE_NAMES[part].format(snake=snake)
+            if not path.is_file():
+                raise UsageError(f"--suites {part}: no suite {path}")
+            suites[part] = path
+        elif part.endswith(".toml") and Path(part).is_file():
+            suites[Path(part).stem] = Path(part)
+        else:
+            raise UsageError(
+                f"--suites {text!r}: unknown suite {part!r}; valid choices: {', '.join(SUITE_NAMES)} or a suite file"
+            )
+    return tuple(suites.items())
 
 
 def _default_path(folder: str, name: str, what: str, pattern: str) -> Path:
@@ -256,13 +309,17 @@ def check_args(args: argparse.Namespace) -> Plan:
     workers = config_data.get("num_workers", 4)  # lerobot's default
     if not isinstance(workers, int) or workers < 0:
         raise UsageError(f"config {config} has num_workers {workers!r}; give a non-negative integer")
-    suite = _default_path("eval/suites", f"{snake}.toml", "suite", "*.toml")
-    try:
-        seeds = len(load_suite(suite).seeds)
-    except KitbenchError as exc:
-        raise UsageError(str(exc)) from None
-    if args.suite_episodes is not None and args.suite_episodes > seeds:
-        raise UsageError(f"--suite-episodes {args.suite_episodes}: suite {suite} has {seeds} seeds")
+    _default_path("eval/suites", f"{snake}.toml", "suite", "*.toml")
+    suites = parse_suites(args.suites, snake)
+    for _, suite in suites:
+        try:
+            loaded = load_suite(suite)
+        except KitbenchError as exc:
+            raise UsageError(str(exc)) from None
+        if loaded.task != task:
+            raise UsageError(f"suite {suite} is for {loaded.task}, not --task {task}")
+        if args.suite_episodes is not None and args.suite_episodes > len(loaded.seeds):
+            raise UsageError(f"--suite-episodes {args.suite_episodes}: suite {suite} has {len(loaded.seeds)} seeds")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is a file; give a folder")
@@ -274,7 +331,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         policy=args.policy,
         config=config,
         recipe=recipe,
-        suite=suite,
+        suites=suites,
         out=out,
         steps=args.steps,
         control_mode=args.control_mode or recorded_mode,
@@ -288,6 +345,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         eval_batch_size=args.eval_batch_size,
         tag=args.tag,
         option_sets=parse_sweep(args.policy_option or [], config_data["policy"]["type"]),
+        train_seeds=parse_train_seeds(args.train_seeds),
     )
 
 
@@ -373,13 +431,15 @@ def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bo
     return command, False
 
 
-def train_command(plan: Plan, data: Path, train_dir: Path) -> list[str]:
+def train_command(plan: Plan, data: Path, train_dir: Path, seed: int | None = None) -> list[str]:
     command = [
         str(BIN / "lerobot-train"),
         f"--config_path={plan.config}",
         f"--dataset.root={data}",
         f"--output_dir={train_dir}",
     ]
+    if seed is not None:
+        command.append(f"--seed={seed}")
     if plan.steps is not None:
         command.append(f"--steps={plan.steps}")
     if plan.control_mode_flag is not None and plan.config_has_env:
@@ -412,18 +472,30 @@ def loop_seconds(log: Path) -> float | None:
     return (stamps["End of training"] - stamps["num_total_params="]).total_seconds()
 
 
-def train(plan: Plan, data: Path, policy_dir: Path) -> dict:
+def train(plan: Plan, data: Path, policy_dir: Path, seed: int | None = None) -> dict:
+    """Train, or reuse a checkpoint whose training finished with the same command on the same data (its stamp,
+    written last, says so)."""
     train_dir = policy_dir / "train"
-    if train_dir.exists():  # lerobot-train refuses an existing output folder
-        shutil.rmtree(train_dir)
-    command = train_command(plan, data, train_dir)
+    command = train_command(plan, data, train_dir, seed)
     log = policy_dir / "train.log"
     env = {THREADS_VAR: plan.train_threads}
-    seconds = run_logged(command, log, env)
+    stamp = policy_dir / "train_done.json"
+    data_stamp = (
+        (data.parent / "record_request.json").read_text() if (data.parent / "record_request.json").is_file() else ""
+    )
+    request = {"command": command, "env": env, "data": hashlib.sha256(data_stamp.encode()).hexdigest()}
     checkpoint = train_dir / "checkpoints" / "last" / "pretrained_model"
+    if stamp.is_file() and (checkpoint / "model.safetensors").is_file():
+        done = json.loads(stamp.read_text())
+        if done.get("request") == request:
+            return {**done["trained"], "dir": train_dir, "reused": True}
+    stamp.unlink(missing_ok=True)
+    if train_dir.exists():  # lerobot-train refuses an existing output folder
+        shutil.rmtree(train_dir)
+    seconds = run_logged(command, log, env)
     train_config = json.loads((checkpoint / "train_config.json").read_text())
     params, source = count_parameters(log, checkpoint)
-    return {
+    trained = {
         "command": command,
         "env": env,
         "dir": train_dir,
@@ -434,18 +506,31 @@ def train(plan: Plan, data: Path, policy_dir: Path) -> dict:
         "loop_seconds": loop_seconds(log),
         "params": params,
         "params_source": source,
+        "seed": train_config.get("seed"),
     }
+    stamp.write_text(json.dumps({"request": request, "trained": {**trained, "dir": str(train_dir)}}, indent=1) + "\n")
+    return {**trained, "reused": False}
+
+
+def eval_dir_name(suite_name: str, options: tuple[tuple[str, object], ...]) -> str:
+    parts = [p for p in (suite_name if suite_name != "standard" else "", options_tag(options)) if p]
+    return "_".join(["eval", *parts])
 
 
 def evaluate(
-    plan: Plan, train_dir: Path, policy_dir: Path, options: tuple[tuple[str, object], ...] = ()
-) -> tuple[list[str], dict]:
-    eval_dir = policy_dir / ("eval" if not options else f"eval_{options_tag(options)}")
+    plan: Plan,
+    train_dir: Path,
+    policy_dir: Path,
+    options: tuple[tuple[str, object], ...] = (),
+    suite: tuple[str, Path] = ("standard", Path()),
+) -> tuple[list[str], dict, bool]:
+    """Score the checkpoint on `suite`, or reuse the report the same command wrote; (command, report, reused)."""
+    eval_dir = policy_dir / eval_dir_name(suite[0], options)
     command = [
         str(BIN / "kitbench"),
         "eval",
         "--suite",
-        str(plan.suite),
+        str(suite[1]),
         "--policy",
         f"lerobot:{train_dir}",
         "--out",
@@ -465,12 +550,13 @@ def evaluate(
         command += ["--batch-size", str(plan.eval_batch_size)]
     for key, value in options:
         command += ["--policy-option", f"{key}={json.dumps(value)}"]
+    stamp = eval_dir.with_name(eval_dir.name + ".request.json")
+    if stamp.is_file() and (eval_dir / REPORT_JSON).is_file() and json.loads(stamp.read_text()) == command:
+        return command, json.loads((eval_dir / REPORT_JSON).read_text()), True
+    stamp.unlink(missing_ok=True)
     run_logged(command, eval_dir.with_name(eval_dir.name + ".log"))
-    return command, json.loads((eval_dir / REPORT_JSON).read_text())
-
-
-def report_path(policy_dir: Path, options: tuple[tuple[str, object], ...]) -> str:
-    return str(policy_dir / ("eval" if not options else f"eval_{options_tag(options)}") / REPORT_JSON)
+    stamp.write_text(json.dumps(command) + "\n")
+    return command, json.loads((eval_dir / REPORT_JSON).read_text()), False
 
 
 def machine() -> dict:
@@ -490,47 +576,72 @@ def run_name(plan: Plan, demos: int) -> str:
     return f"{plan.snake}_{plan.obs}_d{demos}" + (f"_{plan.tag}" if plan.tag else "")
 
 
-def one_run(plan: Plan, demos: int) -> list[dict]:
-    """Record (or reuse), train once, and score the checkpoint once per option set: one row each."""
+def policy_dir_of(plan: Plan, run_dir: Path, seed: int | None) -> Path:
+    return run_dir / (plan.policy if seed is None else f"{plan.policy}_seed{seed}")
+
+
+def one_run(plan: Plan, demos: int, reference_s: float, on_row=None) -> list[dict]:
+    """Record (or reuse), train once per training seed, and score each checkpoint once per suite and option set:
+    one row each (`on_row(row)` as each is made)."""
     started = now()
     name = run_name(plan, demos)
     run_dir = plan.out / name
-    policy_dir = run_dir / plan.policy
     data = run_dir / "data"
     print(f"[{name}] {demos} demonstrations -> {data}", flush=True)
     record, reused = ensure_dataset(plan, run_dir, demos)
     if reused:
         print(f"[{name}]   reusing the dataset recorded by the same command", flush=True)
-    print(f"[{name}] training {plan.policy} ({plan.config}); log {policy_dir / 'train.log'}", flush=True)
-    trained = train(plan, data, policy_dir)
-    print(f"[{name}]   {trained['steps']} steps in {trained['seconds'] / 60:.1f} min", flush=True)
-    shared = {"demos": demos, "started": started, "name": name, "data": data, "record": record, "reused": reused}
     rows = []
-    for options in plan.option_sets:
-        what = f" with {options_tag(options)}" if options else ""
-        print(f"[{name}] evaluating on {plan.suite}{what}", flush=True)
-        eval_cmd, report = evaluate(plan, trained["dir"], policy_dir, options)
-        rows.append(_row(plan, shared, trained, eval_cmd, report, options))
+    for seed in plan.train_seeds:
+        policy_dir = policy_dir_of(plan, run_dir, seed)
+        which = "" if seed is None else f", training seed {seed}"
+        print(f"[{name}] training {plan.policy}{which} ({plan.config}); log {policy_dir / 'train.log'}", flush=True)
+        trained = train(plan, data, policy_dir, seed)
+        done = "reused the checkpoint trained by the same command" if trained["reused"] else "trained"
+        print(f"[{name}]   {done}: {trained['steps']} steps in {trained['seconds'] / 60:.1f} min", flush=True)
+        shared = {"demos": demos, "started": started, "name": name, "data": data, "record": record, "reused": reused}
+        for suite in plan.suites:
+            for options in plan.option_sets:
+                what = f" with {options_tag(options)}" if options else ""
+                print(f"[{name}] evaluating on {suite[1]}{what}", flush=True)
+                eval_cmd, report, _ = evaluate(plan, trained["dir"], policy_dir, options, suite)
+                row = _row(plan, shared, trained, eval_cmd, report, options, seed, suite, reference_s)
+                rows.append(row)
+                if on_row is not None:
+                    on_row(row)
     return rows
 
 
-def _row(plan: Plan, shared: dict, trained: dict, eval_cmd: list[str], report: dict, options) -> dict:
+def _row(
+    plan: Plan,
+    shared: dict,
+    trained: dict,
+    eval_cmd: list[str],
+    report: dict,
+    options,
+    seed: int | None = None,
+    suite: tuple[str, Path] = ("standard", Path()),
+    reference_s: float | None = None,
+) -> dict:
     """One results row: the run's recording and training (`shared`, `trained`) and one evaluation of it."""
     demos, started, name, data = shared["demos"], shared["started"], shared["name"], shared["data"]
     record, reused = shared["record"], shared["reused"]
-    policy_dir = plan.out / name / plan.policy
+    policy_dir = policy_dir_of(plan, plan.out / name, seed)
     tag = "+".join(t for t in (plan.tag, options_tag(options)) if t) or None
     k, n = report["success"]["count"], report["episodes"]
     lo, hi = wilson_interval(k, n)
     recorded = read_recording_settings(data) or {}  # what the recipe and the flags came to
+    qualifiers = [q for q in (f"seed {seed}" if seed is not None else "", suite[0], options_tag(options)) if q]
     return {
         "task": plan.task,
         "obs": plan.obs,
         "policy": plan.policy,
         "tag": tag,
-        "run": name + (f" [{options_tag(options)}]" if options else ""),
+        "run": name + (f" [{', '.join(qualifiers)}]" if qualifiers else ""),
         "policy_options": dict(options),
         "demos": demos,
+        "train_seed": trained.get("seed") if seed is None else seed,
+        "suite_name": suite[0],
         "params": trained["params"],
         "params_source": trained["params_source"],
         "train_steps": trained["steps"],
@@ -538,9 +649,11 @@ def _row(plan: Plan, shared: dict, trained: dict, eval_cmd: list[str], report: d
         "train_device": trained["device"],
         "train_seconds": trained["seconds"],
         "train_loop_seconds": trained["loop_seconds"],
+        "train_reused": trained["reused"],
         # the loop's rate where the log dates it: at a few steps start-up (imports, dataset, dataloader workers)
         # would dominate the wall clock
         "steps_per_s": trained["steps"] / (trained["loop_seconds"] or trained["seconds"]),
+        "reference_seconds": reference_s,
         "success": {"count": k, "episodes": n, "rate": k / n if n else 0.0, "ci95": [lo, hi]},
         "criteria": {c: r["rate"] for c, r in report["criteria"].items()},
         "failure_categories": report["failure_categories"],
@@ -553,7 +666,7 @@ def _row(plan: Plan, shared: dict, trained: dict, eval_cmd: list[str], report: d
             "reused": reused,
         },
         "config": str(plan.config),
-        "suite": str(plan.suite),
+        "suite": str(suite[1]),
         "commands": {
             "record": shlex.join(record),
             "train": shell_line(trained["command"], trained["env"]),
@@ -562,7 +675,7 @@ def _row(plan: Plan, shared: dict, trained: dict, eval_cmd: list[str], report: d
         "paths": {
             "data": str(data),
             "train": str(trained["dir"]),
-            "report": report_path(policy_dir, options),
+            "report": str(policy_dir / eval_dir_name(suite[0], options) / REPORT_JSON),
         },
         "machine": machine(),
         "kitbench_version": kitbench.__version__,
@@ -570,6 +683,79 @@ def _row(plan: Plan, shared: dict, trained: dict, eval_cmd: list[str], report: d
         "started": started,
         "finished": now(),
     }
+
+
+def pooled(rows: list[dict]) -> list[str]:
+    """Per (policy, tag, demos): the success pooled over training seeds and suites, each suite's, the first two
+    suites' gap, and each training seed's rate with their spread."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["policy"], r.get("tag"), r["demos"]), []).append(r)
+    lines = []
+    for (policy, tag, demos), group in groups.items():
+
+        def total(rs: list[dict]) -> tuple[int, int]:
+            return sum(r["success"]["count"] for r in rs), sum(r["success"]["episodes"] for r in rs)
+
+        def shown(k: int, n: int) -> str:
+            lo, hi = wilson_interval(k, n)
+            return f"{k}/{n} {k / n:.1%} ({lo:.1%}–{hi:.1%})"
+
+        seeds = list(dict.fromkeys(r["train_seed"] for r in group))
+        suites = list(dict.fromkeys(r["suite_name"] for r in group))
+        lines.append(f"{policy}" + (f" [{tag}]" if tag else "") + f", {demos} demos, training seeds "
+                     f"{', '.join(map(str, seeds))}, suites {', '.join(suites)}:")  # fmt: skip
+        lines.append(f"  pooled: {shown(*total(group))}")
+        by_suite = {s: total([r for r in group if r["suite_name"] == s]) for s in suites}
+        for suite, (k, n) in by_suite.items():
+            lines.append(f"  {suite}: {shown(k, n)}")
+        if len(suites) >= 2:
+            (k1, n1), (k2, n2) = by_suite[suites[0]], by_suite[suites[1]]
+            lo, hi = newcombe_interval(k2, n2, k1, n1)  # first minus second
+            lines.append(
+                f"  gap {suites[0]} − {suites[1]}: {k1 / n1 - k2 / n2:+.1%} ({lo:+.1%} to {hi:+.1%}, Newcombe)"
+            )
+        per_seed = {s: total([r for r in group if r["train_seed"] == s]) for s in seeds}
+        rates = {s: k / n for s, (k, n) in per_seed.items()}
+        lines.append(
+            "  per training seed: "
+            + ", ".join(f"{s}: {shown(k, n)}" for s, (k, n) in per_seed.items())
+            + (f"; spread {min(rates.values()):.1%}–{max(rates.values()):.1%}" if len(rates) > 1 else "")
+        )
+    return lines
+
+
+def published_entry(config: Path) -> dict | None:
+    """The config's published figures (policies/published.toml), if it has any."""
+    import tomllib
+
+    if not PUBLISHED.is_file():
+        return None
+    return tomllib.loads(PUBLISHED.read_text()).get(config.stem)
+
+
+def print_cost(plan: Plan, reference_s: float) -> None:
+    """What the run will do and, from the config's published figures, about how long it will take here."""
+    trainings = len(plan.demos) * len(plan.train_seeds)
+    evaluations = trainings * len(plan.suites) * len(plan.option_sets)
+    print(
+        f"plan: {len(plan.demos)} recording(s) ({', '.join(map(str, plan.demos))} demos), {trainings} training(s) "
+        f"(seeds {', '.join('config' if s is None else str(s) for s in plan.train_seeds)}), {evaluations} "
+        f"evaluation(s) on {', '.join(name for name, _ in plan.suites)}; reference workload here: {reference_s:.1f} s"
+    )
+    entry = published_entry(plan.config)
+    if not entry or "reference_seconds" not in entry:
+        print("cost: no published training time for this config to scale (policies/published.toml)")
+        return
+    scale = plan.steps / entry["steps"] if plan.steps else 1.0
+    train_min = scaled_minutes(entry["train_minutes"] * scale, entry["reference_seconds"], reference_s)
+    eval_min = scaled_minutes(entry.get("eval_minutes", 0.0), entry["reference_seconds"], reference_s)
+    total = trainings * train_min + evaluations * eval_min
+    print(
+        f"cost: about {total / 60:.1f} h here: {train_min:.0f} min a training, {eval_min:.0f} min an evaluation "
+        f"(published {entry['train_minutes']} and {entry.get('eval_minutes', '?')} min on a machine whose reference "
+        f"took {entry['reference_seconds']} s); recordings not counted"
+    )
 
 
 def table(rows: list[dict]) -> str:
@@ -613,17 +799,26 @@ def read_results(path: Path) -> list[dict]:
 
 
 def plot(results: list[dict], task: str, obs: str, path: Path) -> None:
-    """Success rate against demos with Wilson 95% error bars, one line per (policy, tag); the latest row wins
-    where a demo count was run more than once."""
+    """Success rate on the standard suite against demos with Wilson 95% error bars, one line per (policy, tag),
+    pooled over training seeds; the latest row wins where a demo count and seed were run more than once."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    lines: dict[tuple[str, str | None], dict[int, dict]] = {}
+    latest: dict[tuple, dict] = {}  # per (policy, tag, demos, training seed): the latest row on the standard suite
     for r in results:
-        if r["task"] == task and r["obs"] == obs:
-            lines.setdefault((r["policy"], r.get("tag")), {})[r["demos"]] = r
+        if r["task"] == task and r["obs"] == obs and r.get("suite_name", "standard") == "standard":
+            latest[(r["policy"], r.get("tag"), r["demos"], r.get("train_seed"))] = r
+    lines: dict[tuple[str, str | None], dict[int, dict]] = {}
+    for (policy, tag, demos, _), r in latest.items():
+        pool = lines.setdefault((policy, tag), {}).setdefault(demos, {"count": 0, "episodes": 0})
+        pool["count"] += r["success"]["count"]
+        pool["episodes"] += r["success"]["episodes"]
+    for by_demos in lines.values():
+        for demos, pool in by_demos.items():
+            k, n = pool["count"], pool["episodes"]
+            by_demos[demos] = {"success": {"rate": k / n, "ci95": list(wilson_interval(k, n))}}
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     demos_seen: set[int] = set()
     for (policy, tag), by_demos in sorted(lines.items(), key=lambda kv: (kv[0][0], kv[0][1] or "")):
@@ -686,6 +881,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--config", help="lerobot-train config (default policies/<policy>_<task>_<obs>.json)")
     parser.add_argument("--recipe", help="kitbench record recipe (default datasets/<task>_<obs>.toml)")
     parser.add_argument(
+        "--train-seeds", dest="train_seeds", help="train once per seed (lerobot-train --seed), e.g. 1000,2000,3000"
+    )
+    parser.add_argument(
+        "--suites",
+        default="standard",
+        help="score each checkpoint on these: standard, heldout (eval/suites/<task>[_heldout].toml) or suite files",
+    )
+    parser.add_argument(
         "--policy-option",
         dest="policy_option",
         action="append",
@@ -702,16 +905,21 @@ def main() -> int:
     except UsageError as exc:
         print(f"learnability: error: {exc}", file=sys.stderr)
         return 2
+    reference_s = reference_seconds(int(plan.train_threads))
+    print_cost(plan, reference_s)
     plan.out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
-    png = None
+    pngs: list[Path] = []
+
+    def on_row(row: dict) -> None:
+        rows.append(row)
+        pngs.append(publish(plan, row))
+        s = row["success"]
+        print(f"[{row['run']}] success {s['count']}/{s['episodes']} ({s['rate']:.0%})", flush=True)
+
     try:
         for demos in plan.demos:
-            for row in one_run(plan, demos):
-                rows.append(row)
-                png = publish(plan, row)
-                s = row["success"]
-                print(f"[{row['run']}] success {s['count']}/{s['episodes']} ({s['rate']:.0%})", flush=True)
+            one_run(plan, demos, reference_s, on_row)
     except CommandFailed as exc:
         if rows:
             print(table(rows))
@@ -721,7 +929,10 @@ def main() -> int:
     print()
     print(f"{plan.task} · {plan.obs} · {plan.policy}" + (f" · {plan.tag}" if plan.tag else ""))
     print(table(rows))
-    print(f"results: {plan.out / 'results.jsonl'}; plot: {png}")
+    if len(plan.train_seeds) > 1 or len(plan.suites) > 1:
+        print()
+        print("\n".join(pooled(rows)))
+    print(f"results: {plan.out / 'results.jsonl'}; plot: {pngs[-1] if pngs else None}")
     return 0
 
 

@@ -78,6 +78,7 @@ def _recording_flags(args) -> dict:
         "obs_mode": args.obs_mode,
         "control_mode": args.control_mode,
         "pointcloud_points": args.pointcloud_points,
+        "rgb_storage": args.rgb_storage,
         "workers": args.workers,
         "executor": args.executor,
         "ray_address": args.ray_address,
@@ -212,6 +213,26 @@ def _eval(args) -> int:
     return 0
 
 
+def _reproduce(args) -> int:
+    from kitbench.reproduce import PUBLISHED, ReproduceConfig, reproduce
+
+    config = ReproduceConfig(
+        config=args.config.removesuffix(".json").rsplit("/", 1)[-1],
+        out=Path(args.out or f"outputs/reproduce/{args.config}"),
+        steps=args.steps,
+        demos=args.demos,
+        eval_episodes=args.eval_episodes,
+        seed=args.seed,
+        workers=args.workers,
+        published=Path(args.published) if args.published else PUBLISHED,
+    )
+    try:
+        return reproduce(config)
+    except KitbenchError as exc:
+        print(f"kitbench reproduce: error: {exc}", file=sys.stderr)
+        return 2
+
+
 def _compare(args) -> int:
     from kitbench.evaluation.compare import compare_reports
 
@@ -284,6 +305,11 @@ def build_parser() -> argparse.ArgumentParser:
         dest="pointcloud_points",
         type=int,
         help="points stored per frame with --obs-mode pointcloud (default 1024), sampled with the episode's seed",
+    )
+    rec.add_argument(
+        "--rgb-storage",
+        dest="rgb_storage",
+        help="how rgb frames are stored: video (default; h264, lossy) or images (PNG, lossless, ~5x the bytes)",
     )
     rec.add_argument("--control-mode", dest="control_mode", help="action space recorded (default pd_joint_delta_pos)")
     rec.add_argument(
@@ -377,6 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="action space to store (default: the source's); another one tracks the source's joint trajectory",
     )
     cv.add_argument("--pointcloud-points", dest="pointcloud_points", type=int, help="as kitbench record's")
+    cv.add_argument("--rgb-storage", dest="rgb_storage", help="as kitbench record's (default: the source's)")
     cv.add_argument("--workers", type=int, help="simulator workers (default 1); the dataset does not depend on it")
     _executor_flags(cv)
     cv.add_argument("--resume", action="store_true", help="continue an interrupted conversion in --out")
@@ -384,6 +411,20 @@ def build_parser() -> argparse.ArgumentParser:
     cv.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=None, help="write MCAP logs (default on)")
     cv.add_argument("--commit-interval", dest="commit_interval", type=float, help="as kitbench record's (default 30)")
     cv.set_defaults(func=_convert)
+    rp = sub.add_parser(
+        "reproduce",
+        help="record, train and score a shipped config as published (policies/published.toml) and say whether its "
+        "figure falls inside the published interval (exit 3 when not)",
+    )
+    rp.add_argument("config", help="a config in policies/ with a published figure, e.g. act_lift_peg_upright_state")
+    rp.add_argument("--out", help="working folder (default outputs/reproduce/<config>; a recording there is resumed)")
+    rp.add_argument("--steps", type=int, help="training steps (default: the published run's)")
+    rp.add_argument("--demos", type=int, help="demonstrations (default: the published run's)")
+    rp.add_argument("--eval-episodes", dest="eval_episodes", type=int, help="each suite's first N seeds (default all)")
+    rp.add_argument("--seed", type=int, help="lerobot-train --seed (default: the published run's first)")
+    rp.add_argument("--workers", type=int, default=1, help="recording and evaluation processes (default 1)")
+    rp.add_argument("--published", help="a published-figures file (default policies/published.toml)")
+    rp.set_defaults(func=_reproduce)
     vw = sub.add_parser("view", help="show a recorded episode in LeRobot's viewer (Rerun), or save it as .rrd")
     vw.add_argument("dataset", help="a dataset folder (LeRobot v3)")
     vw.add_argument("--episode", type=int, default=0, help="episode index (default 0)")

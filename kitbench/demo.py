@@ -5,7 +5,9 @@ evaluation suite, and say where everything is.
 
 from __future__ import annotations
 
+import shlex
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,17 +106,84 @@ def run_demo(config: DemoConfig, say=print) -> dict:
             for line in summary_lines(reports[policy], report_dir):
                 say(f"  {line}")
         results[task] = {"dataset": dataset, "reports": reports}
-    say("\nnext:")
     first = config.tasks[0]
-    say(
-        f'  load a dataset:  python -c "from lerobot.datasets.lerobot_dataset import LeRobotDataset; '
-        f"print(LeRobotDataset('kitbench/{first}', root='{out / 'datasets' / first}'))\""
-    )
-    say(f"  view an episode: kitbench view {out / 'datasets' / first}")
-    recipes = sorted(p.name for p in (ROOT / "datasets").glob("*.toml"))
-    configs = sorted(p.name for p in (ROOT / "policies").glob("*.json"))
-    if recipes:
-        say(f"  record more:     kitbench record datasets/{recipes[0]}   (recipes: {', '.join(recipes)})")
-    if configs:
-        say(f"  train:           lerobot-train --config_path=policies/{configs[0]}   (configs: {', '.join(configs)})")
+    kitbench = command_path("kitbench")
+    say("\nnext:")
+    say(f"  view an episode: {kitbench} view {out / 'datasets' / first}")
+    for line in learning_loop(cuda_available()).lines():
+        say(line)
     return results
+
+
+def command_path(name: str) -> str:
+    """How to run this environment's console script `name` as printed: its bare name when the shell finds this
+    one, else its path (relative to the working folder when inside it), e.g. `.venv/bin/lerobot-train`."""
+    here = Path(sys.executable).parent / name
+    if shutil.which(name) == str(here):
+        return name
+    try:
+        return str(here.relative_to(Path.cwd()))
+    except ValueError:
+        return str(here)
+
+
+def cuda_available() -> bool:
+    import torch
+
+    return torch.cuda.is_available()
+
+
+@dataclass(frozen=True)
+class LearningLoop:
+    """Record -> train -> score for one shipped config that learns on this machine, as commands that run as
+    printed from the project folder."""
+
+    config: str
+    published: str  # its figure, in words
+    minutes: str  # how long its training takes here, in words
+    record: list[str]
+    train: list[str]
+    train_env: dict[str, str]
+    score: list[str]
+    reproduce: list[str]
+
+    def lines(self) -> list[str]:
+        train = " ".join([*(f"{k}={v}" for k, v in self.train_env.items()), shlex.join(self.train)])
+        return [
+            f"  learn from the demonstrations: {self.config} ({self.published}; {self.minutes}):",
+            f"    1. record: {shlex.join(self.record)}",
+            f"    2. train:  {train}",
+            f"    3. score:  {shlex.join(self.score)}",
+            f"    or all three, compared with the published figure: {shlex.join(self.reproduce)}",
+        ]
+
+
+def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
+    """The image config where torch sees CUDA (it needs a GPU), else the state config (2 CPU cores suffice)."""
+    from kitbench.reproduce import load_published, train_threads
+    from kitbench.training.reference import reference_seconds, scaled_minutes
+
+    name = "act_lift_peg_upright_rgb" if cuda else "act_lift_peg_upright_state"
+    entry = load_published()[name]
+    config = ROOT / "policies" / f"{name}.json"
+    recipe = entry.recipe.relative_to(ROOT)
+    train_dir = Path("outputs/train") / name
+    suite = Path("eval/suites") / f"{entry.suites[0]}.toml"
+    threads = train_threads(config)
+    published = f"{entry.rate:.0%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
+    if entry.reference_seconds:
+        here = reference_seconds(int(threads)) if reference_s is None else reference_s
+        minutes = f"about {scaled_minutes(entry.train_minutes, entry.reference_seconds, here):.0f} min of training here"
+    else:
+        minutes = "its training time here not estimated"
+    kitbench, train = command_path("kitbench"), command_path("lerobot-train")
+    return LearningLoop(
+        config=name,
+        published=published,
+        minutes=minutes,
+        record=[kitbench, "record", str(recipe)],
+        train=[train, f"--config_path={config.relative_to(ROOT)}", f"--output_dir={train_dir}"],
+        train_env={"OMP_NUM_THREADS": threads},
+        score=[kitbench, "eval", "--suite", str(suite), "--policy", f"lerobot:{train_dir}"],
+        reproduce=[kitbench, "reproduce", name],
+    )

@@ -33,3 +33,37 @@ def test_demo_refuses_an_unknown_task(tmp_path):
     with pytest.raises(ValueError, match=r"unknown task.*Nope-v1.*valid choices"):
         run_demo(DemoConfig(out=tmp_path / "x", tasks=("Nope-v1",)))
     assert not (tmp_path / "x").exists()
+
+
+def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeypatch, needs_vulkan):
+    """The record -> train -> score commands the demo ends with, run as printed from a project folder (its recipes,
+    configs and suites) on the CPU, with only a tiny size added to each."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from kitbench.demo import learning_loop
+
+    root = Path(__file__).resolve().parents[1]
+    for folder in ("datasets", "policies", "eval"):
+        (tmp_path / folder).symlink_to(root / folder)
+    monkeypatch.chdir(tmp_path)
+    loop = learning_loop(cuda=False, reference_s=1.0)
+    assert loop.config == "act_lift_peg_upright_state" and "min on 2 CPU cores" in loop.published
+    assert "min of training here" in loop.minutes  # scaled by the reference workload
+    lines = loop.lines()
+    assert any(
+        line.endswith(" ".join([*(f"{k}={v}" for k, v in loop.train_env.items()), *loop.train])) for line in lines
+    )
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", **loop.train_env}
+    env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '')}"
+    for command, tiny in (
+        (loop.record, ["--episodes", "2", "--no-mcap"]),
+        (loop.train, ["--steps=2", "--save_freq=2"]),
+        (loop.score, ["--episodes", "2"]),
+    ):
+        run = subprocess.run([*command, *tiny], capture_output=True, text=True, env=env, timeout=900, check=False)
+        assert run.returncode == 0, f"{command}: {run.stdout[-2000:]}{run.stderr[-2000:]}"
+    report = json.loads((tmp_path / "outputs/eval/LiftPegUpright-v1").glob("*/report.json").__next__().read_text())
+    assert report["episodes"] == 2 and report["policy"].startswith("lerobot:")

@@ -1,0 +1,218 @@
+"""`kitbench reproduce <config>`: record, train and score one shipped config as published, and say whether the
+figure falls inside the published interval.
+
+The published figures live in `policies/published.toml` (docs/learnability.md has the runs behind them). The run
+records the config's recipe with the published number of demonstrations (`kitbench record`, resumable), trains
+with stock `lerobot-train --config_path=policies/<config>.json` (torch on the cores the config's loader workers
+leave, as the published runs did), and scores the last checkpoint with `kitbench eval` on the published suites.
+Training minutes are printed beside the published ones scaled to this machine by a fixed reference workload
+(`kitbench.training.reference`) measured in the same run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from kitbench.errors import KitbenchError, check_choice
+
+ROOT = Path(__file__).resolve().parents[1]
+PUBLISHED = ROOT / "policies" / "published.toml"
+THREADS_VAR = "OMP_NUM_THREADS"
+
+
+@dataclass(frozen=True)
+class Published:
+    """One config's published figure (`policies/published.toml`)."""
+
+    config: str
+    recipe: Path
+    demos: int
+    steps: int
+    seeds: tuple[int, ...]
+    suites: tuple[str, ...]
+    success: int
+    episodes: int
+    interval: tuple[float, float]
+    train_minutes: float
+    eval_batch_size: int = 1
+    reference_seconds: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def rate(self) -> float:
+        return self.success / self.episodes
+
+
+def load_published(path: Path = PUBLISHED) -> dict[str, Published]:
+    try:
+        table = tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise KitbenchError(f"published figures {path} unreadable ({exc})") from None
+    known = {"recipe", "demos", "steps", "seeds", "suites", "success", "episodes", "interval", "train_minutes"}
+    out = {}
+    for name, entry in table.items():
+        missing = sorted(known - set(entry))
+        if missing:
+            raise KitbenchError(f"published figures {path}: [{name}] lacks {', '.join(missing)}")
+        out[name] = Published(
+            config=name,
+            recipe=ROOT / entry["recipe"],
+            demos=int(entry["demos"]),
+            steps=int(entry["steps"]),
+            seeds=tuple(int(s) for s in entry["seeds"]),
+            suites=tuple(entry["suites"]),
+            success=int(entry["success"]),
+            episodes=int(entry["episodes"]),
+            interval=(float(entry["interval"][0]), float(entry["interval"][1])),
+            train_minutes=float(entry["train_minutes"]),
+            eval_batch_size=int(entry.get("eval_batch_size", 1)),
+            reference_seconds=entry.get("reference_seconds"),
+            extra={k: v for k, v in entry.items() if k not in known},
+        )
+    return out
+
+
+@dataclass(frozen=True)
+class ReproduceConfig:
+    config: str
+    out: Path
+    steps: int | None = None  # the published config's own when None
+    demos: int | None = None
+    eval_episodes: int | None = None  # each suite's first N seeds; None: all
+    seed: int | None = None  # lerobot-train --seed; None: the published run's first
+    workers: int = 1  # recording and evaluation processes
+    published: Path = PUBLISHED
+
+
+def check(config: ReproduceConfig) -> Published:
+    published = load_published(config.published)
+    check_choice("config", config.config, sorted(published))
+    for name, value in (("steps", config.steps), ("demos", config.demos), ("eval_episodes", config.eval_episodes)):
+        if value is not None and (not isinstance(value, int) or value < 1):
+            raise KitbenchError(f"{name} must be a positive integer, got {value!r}")
+    if config.seed is not None and config.seed < 0:
+        raise KitbenchError(f"seed must be a non-negative integer, got {config.seed}")
+    entry = published[config.config]
+    if not (ROOT / "policies" / f"{config.config}.json").is_file():
+        raise KitbenchError(f"no config policies/{config.config}.json for the published figure {config.config!r}")
+    if not entry.recipe.is_file():
+        raise KitbenchError(f"published figure {config.config!r} names recipe {entry.recipe}, which does not exist")
+    if config.out.exists() and not config.out.is_dir():
+        raise KitbenchError(f"output {config.out} is not a folder; give --out a folder path")
+    return entry
+
+
+def train_threads(config_path: Path) -> str:
+    """torch's threads for lerobot-train: the cores the config's loader workers leave, at least one."""
+    if os.environ.get(THREADS_VAR):
+        return os.environ[THREADS_VAR]
+    workers = json.loads(config_path.read_text()).get("num_workers", 4)
+    return str(max(1, (os.cpu_count() or 1) - int(workers)))
+
+
+def train_command(config_path: Path, data: Path, out: Path, steps: int | None, seed: int | None) -> list[str]:
+    command = [str(Path(sys.executable).parent / "lerobot-train"), f"--config_path={config_path}"]
+    command += [f"--dataset.root={data}", f"--output_dir={out}"]
+    if steps is not None:
+        command.append(f"--steps={steps}")
+    if seed is not None:
+        command.append(f"--seed={seed}")
+    return command
+
+
+def reproduce(config: ReproduceConfig, say=print) -> int:
+    """Run the whole loop; 0 when the figure falls inside the published interval, 3 when it does not."""
+    import dataclasses
+    import shutil
+
+    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.stats import wilson_interval
+    from kitbench.evaluation.suite import load_suite
+    from kitbench.recording.recorder import load_recipe, record
+    from kitbench.training.reference import reference_seconds, scaled_minutes
+
+    entry = check(config)
+    config_path = ROOT / "policies" / f"{config.config}.json"
+    demos = config.demos or entry.demos
+    seed = entry.seeds[0] if config.seed is None else config.seed
+    data, train_dir = config.out / "data", config.out / "train"
+    say(f"reproducing {config.config}: {demos} demonstrations from {entry.recipe.name}, training seed {seed}")
+    recipe = load_recipe(entry.recipe, episodes=demos, out=data, workers=config.workers)
+    recipe = dataclasses.replace(recipe, resume=data.exists(), mcap=False)
+    summary = record(recipe)
+    if summary.exit_code != 0:
+        return summary.exit_code
+    threads = train_threads(config_path)
+    here = reference_seconds(int(threads))
+    command = train_command(config_path, data, train_dir, config.steps, seed)
+    if train_dir.exists():  # lerobot-train refuses an existing output folder
+        shutil.rmtree(train_dir)
+    say(f"training: {THREADS_VAR}={threads} {' '.join(command)}")
+    started = time.monotonic()
+    env = {**os.environ, THREADS_VAR: threads, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+    log = config.out / "train.log"
+    with log.open("w") as handle:
+        status = subprocess.run(command, stdout=handle, stderr=subprocess.STDOUT, env=env, check=False).returncode
+    if status != 0:
+        tail = "\n".join(log.read_text(errors="replace").splitlines()[-15:])
+        raise KitbenchError(f"lerobot-train failed (exit {status}); its log: {log}\n{tail}")
+    minutes = (time.monotonic() - started) / 60
+    successes = episodes = 0
+    for name in entry.suites:
+        suite = load_suite(ROOT / "eval" / "suites" / f"{name}.toml")
+        if config.eval_episodes is not None:
+            suite = suite.first(config.eval_episodes)
+        report = run_eval(
+            EvalConfig(
+                suite,
+                f"lerobot:{train_dir}",
+                config.out / f"eval_{name}",
+                workers=config.workers,
+                overwrite=True,
+                batch_size=entry.eval_batch_size,
+            )
+        )
+        successes += report["success"]["count"]
+        episodes += report["episodes"]
+    lo, hi = wilson_interval(successes, episodes)
+    rate = successes / episodes
+    inside = entry.interval[0] <= rate <= entry.interval[1]
+    say(f"\n{config.config}: {successes}/{episodes} = {rate:.1%} (95% CI {lo:.1%}–{hi:.1%})")
+    say(
+        f"published: {entry.success}/{entry.episodes} = {entry.rate:.1%} ({entry.interval[0]:.1%}–"
+        f"{entry.interval[1]:.1%}; training seeds {', '.join(map(str, entry.seeds))}; suites "
+        f"{', '.join(entry.suites)})"
+    )
+    say(f"{'inside' if inside else 'outside'} the published interval")
+    scaled = ""
+    if entry.reference_seconds:
+        there = scaled_minutes(entry.train_minutes, entry.reference_seconds, here)
+        scaled = f"; the published {entry.train_minutes:.1f} min are {there:.1f} here"
+    say(
+        f"training: {minutes:.1f} min for {config.steps or entry.steps} steps (reference workload {here:.1f} s{scaled})"
+    )
+    (config.out / "reproduce.json").write_text(
+        json.dumps(
+            {
+                "config": config.config,
+                "success": successes,
+                "episodes": episodes,
+                "ci95": [lo, hi],
+                "published_interval": list(entry.interval),
+                "inside": inside,
+                "train_minutes": minutes,
+                "reference_seconds": here,
+                "train_command": command,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
+    return 0 if inside else 3

@@ -1,0 +1,82 @@
+"""`bench/learnability.py` over training seeds and seed sets: its argument checks are one line each with nothing
+written, and a two-training-seed run at a tiny step count scores every checkpoint on both suites, prints the pooled
+table, and picks up where it stopped when run again."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.lerobot_cli import OFFLINE
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "bench" / "learnability.py"
+TASK = "LiftPegUpright-v1"
+
+
+def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    command = [sys.executable, str(BENCH), "--task", TASK, "--demos", "2", *args]
+    return subprocess.run(command, capture_output=True, text=True, env=OFFLINE, cwd=cwd, timeout=1500, check=False)
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--train-seeds", "1000,-3"], "--train-seeds '1000,-3': '-3' is not a non-negative integer"),
+        (["--train-seeds", "x"], "--train-seeds 'x': 'x' is not a non-negative integer"),
+        (["--suites", "standard,nightly"], "unknown suite 'nightly'; valid choices: standard, heldout or a suite file"),
+        (["--recipe", "datasets/none.toml"], "no recipe datasets/none.toml"),
+    ],
+)
+def test_bad_arguments_are_one_line_and_write_nothing(tmp_path, args, message):
+    run = _bench(*args, "--out", str(tmp_path / "out"), cwd=ROOT)
+    assert run.returncode == 2 and run.stdout == ""
+    assert run.stderr.count("\n") == 1 and message in run.stderr, run.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def _tiny_config(where: Path) -> Path:
+    """The shipped ACT LiftPegUpright config cut to a few parameters and no in-training evaluation."""
+    config = json.loads((ROOT / "policies" / "act_lift_peg_upright_state.json").read_text())
+    config.pop("env", None)
+    config["policy"].update(dim_model=32, dim_feedforward=64, n_heads=2, device="cpu")
+    config.update(batch_size=4, num_workers=0, save_freq=2, log_freq=1)
+    path = where / "act_lift_peg_upright_state.json"
+    path.write_text(json.dumps(config))
+    return path
+
+
+def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_path, needs_vulkan):
+    config = _tiny_config(tmp_path)
+    args = ["--config", str(config), "--steps", "2", "--train-seeds", "1,2", "--suites", "standard,heldout"]
+    args += ["--suite-episodes", "2", "--out", str(tmp_path / "out")]
+    run = _bench(*args, cwd=ROOT)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "plan: 1 recording(s) (2 demos), 2 training(s) (seeds 1, 2), 4 evaluation(s) on standard, heldout" in (
+        run.stdout
+    )
+    rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
+    assert sorted((r["train_seed"], r["suite_name"]) for r in rows) == [
+        (1, "heldout"),
+        (1, "standard"),
+        (2, "heldout"),
+        (2, "standard"),
+    ]
+    assert all(r["reference_seconds"] > 0 and r["success"]["episodes"] == 2 for r in rows)
+    heldout = [r for r in rows if r["suite_name"] == "heldout"]
+    assert all("lift_peg_upright_heldout.toml" in r["commands"]["eval"] for r in heldout)
+    pooled = run.stdout[run.stdout.index("act, 2 demos, training seeds 1, 2, suites standard, heldout:") :]
+    k = sum(r["success"]["count"] for r in rows)
+    assert f"  pooled: {k}/8 " in pooled and "  standard: " in pooled and "  heldout: " in pooled
+    assert "gap standard − heldout: " in pooled and "per training seed: 1: " in pooled
+
+    # run again: every checkpoint and report is reused, nothing is trained or scored twice
+    again = _bench(*args, cwd=ROOT)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert again.stdout.count("reused the checkpoint trained by the same command") == 2
+    rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 8 and all(r["train_reused"] for r in rows[4:])
