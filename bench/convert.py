@@ -46,7 +46,7 @@ def main() -> None:
             sources = {}
             for mode in args.sources.split(","):
                 root = base / f"src_{mode}"
-                record(RecordConfig(task, n, root, control_mode=mode, mcap=False), progress=False)
+                record(RecordConfig.of(task, n, root, control_mode=mode, mcap=False), progress=False)
                 sources[mode] = root
                 for target in args.targets.split(","):
                     if target == mode:
@@ -68,12 +68,12 @@ def rgb_against_recording(task: str, source: Path, scratch: Path, n: int, worker
     mode = SourceRecording(source).settings["control_mode"]
     # untimed: the first rendered frame of a process compiles its pipelines, which the first timed run would pay
     record(
-        RecordConfig(task, 1, scratch / "rgb_warm_up", control_mode=mode, obs_mode="rgb", mcap=False), progress=False
+        RecordConfig.of(task, 1, scratch / "rgb_warm_up", control_mode=mode, obs_mode="rgb", mcap=False), progress=False
     )
     converted, c_s = timed(
         convert_config(source, scratch / "rgb_converted", obs_mode="rgb", mcap=False, workers=workers)
     )
-    direct_config = RecordConfig(
+    direct_config = RecordConfig.of(
         task, n, scratch / "rgb_direct", control_mode=mode, obs_mode="rgb", mcap=False, workers=workers
     )
     direct, d_s = timed(direct_config)

@@ -15,14 +15,14 @@ k/n with the Wilson 95% interval, and the failure categories. Everything is kept
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.stats import wilson_interval
 from kitbench.evaluation.suite import load_suite
 from kitbench.recording.recorder import RecordConfig, load_recipe, record
@@ -60,7 +60,7 @@ def join(parts: list[Path], out: Path) -> None:
 def score(task: str, checkpoint: Path, control_mode: str, episodes: int, out: Path) -> dict:
     suite = load_suite(ROOT / "eval" / "suites" / f"{snake(task)}.toml").first(episodes)
     suite = suite.with_modes(control_mode=control_mode)
-    return run_eval(EvalConfig(suite, f"lerobot:{checkpoint}", out, overwrite=True), progress=False)
+    return run_eval(EvalConfig.of(suite, f"lerobot:{checkpoint}", out, overwrite=True), progress=False)
 
 
 def main() -> None:
@@ -82,7 +82,7 @@ def main() -> None:
 
     def demos(n: int) -> Path:
         root = out / f"demos_{n}"
-        record(dataclasses.replace(recipe, episodes=n, out=root, overwrite=True, mcap=False), progress=False)
+        record(recipe.replace(episodes=n, out=root, overwrite=True, mcap=False), progress=False)
         return root
 
     rows = []
@@ -90,7 +90,7 @@ def main() -> None:
     seconds = train(config, demos(d), weak, args.steps)
     rows.append((f"{d} demos", d, weak, seconds))
     rollouts = out / "rollouts_relabelled"
-    relabel = RecordConfig(
+    relabel = RecordConfig.of(
         task,
         r,
         rollouts,

@@ -17,7 +17,6 @@ Options: `--episodes N` (per cell, 16), `--workers W` (1), `--device auto|cpu|cu
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import statistics
@@ -26,7 +25,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import adhoc_suite
 from kitbench.recording.recorder import load_recipe, record
 
@@ -38,7 +38,7 @@ def make_checkpoint(config: Path, demos: int, steps: int, scratch: Path) -> Path
     name = Path(raw["dataset"]["root"]).name
     data = scratch / name
     recipe = load_recipe(ROOT / "datasets" / f"{name}.toml", episodes=demos, out=data, workers=1)
-    record(dataclasses.replace(recipe, mcap=False), progress=False)
+    record(recipe.replace(mcap=False), progress=False)
     out = scratch / "train"
     run = subprocess.run(
         [
@@ -64,7 +64,7 @@ def make_checkpoint(config: Path, demos: int, steps: int, scratch: Path) -> Path
 def cell(task: str, checkpoint: Path, episodes: int, batch: int, workers: int, device: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as out:
         suite = adhoc_suite(task, episodes)
-        config = EvalConfig(suite, f"lerobot:{checkpoint}", out, workers=workers, batch_size=batch, device=device)
+        config = EvalConfig.of(suite, f"lerobot:{checkpoint}", out, workers=workers, batch_size=batch, device=device)
         report = run_eval(config, progress=False)
     return {
         "eps_s": episodes / report["timing"]["scoring_seconds"],

@@ -28,7 +28,8 @@ import time
 from throughput import counts, executor_label, names, start_ray, timed_engine
 
 from kitbench.evaluation import runner
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import adhoc_suite
 
 
@@ -38,7 +39,7 @@ def cell(task: str, policy: str, episodes: int, obs_mode: str, executor: str, wo
         suite = adhoc_suite(task, episodes, obs_mode=obs_mode)
         with timed_engine(runner) as arrivals:
             start = time.perf_counter()
-            report = run_eval(EvalConfig(suite, policy, out, workers=workers, **config_executor), progress=False)
+            report = run_eval(EvalConfig.of(suite, policy, out, workers=workers, **config_executor), progress=False)
     timing = report["timing"]
     steps = sum(e["length"] for e in report["per_episode"])
     return {

@@ -19,7 +19,7 @@ import numpy as np
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.kits import SHAPE_NAMES
 from kitbench.planning.assembling_kits import AssemblingKitsPlanner
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.policies.joint_targets import joint_target_to_action
 
 TASK = "kitbench/AssemblingKits-v1"
 

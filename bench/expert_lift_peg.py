@@ -21,7 +21,7 @@ import numpy as np
 
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.planning.planner import PhasePlanner
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.policies.joint_targets import joint_target_to_action
 
 TASK = "kitbench/LiftPegUpright-v1"
 TASK_STEPS = 50

@@ -62,6 +62,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 import kitbench
+from kitbench.config.files import read_settings
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.plots import error_bars
@@ -72,7 +73,6 @@ from kitbench.evaluation.suite import load_suite
 from kitbench.metadata import read_recording_settings
 from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
 from kitbench.registration import canonical_task, task_entry
-from kitbench.settings import read_settings
 from kitbench.training.reference import reference_seconds, scaled_minutes
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -140,7 +140,7 @@ def recording_sizes(task: str, mode: str, episodes: int, root: Path) -> dict:
     result = {}
     for mcap in (False, True):
         out = folder / ("with-mcap" if mcap else "dataset")
-        config = RecordConfig(
+        config = RecordConfig.of(
             task=task, episodes=episodes, out=out, obs_mode=mode, control_mode="pd_joint_pos", mcap=mcap
         )
         s = record(config, progress=False)

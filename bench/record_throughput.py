@@ -26,7 +26,7 @@ cells' time, as in a real run.
 
 Then the driver commit ceiling: K episodes recorded once in this process (`RecordWork`, real frames and MCAP logs)
 are handed N times, under distinct seeds, to the recorder's own write path (`EpisodeJournal.add`, then the
-recorder's `publish_episode` and `commit_session`, committing every 30 s and at the end, as `record` does) with no
+recording session's `store` and `commit`, committing every 30 s and at the end, as `record` does) with no
 episode running: the episodes/min and frames/s one writer can take in, whatever the executor. Printed with what one
 episode costs the writer (journal, dataset, commits), the bytes that travel from a worker to the writer
 (`pickle.dumps((episode, mcap), protocol=5)`), the MiB it takes on disk, and the number of workers one writer can
@@ -63,7 +63,7 @@ def cell(
 ) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
     obs_mode, _, storage = obs_mode.partition("-")  # "rgb-images": rgb stored as images (--rgb-storage)
-    config = RecordConfig(
+    config = RecordConfig.of(
         task=task,
         episodes=episodes,
         out=folder / "ds",
@@ -96,50 +96,48 @@ def cell(
 
 def commit_ceiling(task: str, obs_mode: str, mcap: bool, sample: int, episodes: int) -> dict:
     """The recorder's write path alone, fed `episodes` copies (distinct seeds) of `sample` recorded episodes."""
-    from kitbench.recording.journal import EpisodeJournal
-    from kitbench.recording.recorder import commit_session, open_writer, publish_episode
+    from kitbench.recording.one_writer import open_session
     from kitbench.recording.work import RecordWork
 
     folder = Path(tempfile.mkdtemp(prefix="kitbench-bench-"))
-    config = RecordConfig(task=task, episodes=episodes, out=folder / "ds", obs_mode=obs_mode, mcap=mcap)
+    config = RecordConfig.of(task=task, episodes=episodes, out=folder / "ds", obs_mode=obs_mode, mcap=mcap)
     try:
         work = RecordWork(config)
         work.setup()
         try:
             start = time.perf_counter()
-            recorded = [work.run(seed) for seed in range(config.seed, config.seed + sample)]
+            recorded = [work.run(seed) for seed in range(config.demo.seed, config.demo.seed + sample)]
             episode_s = (time.perf_counter() - start) / sample
         finally:
             work.close()
         wire = sum(len(pickle.dumps(r, protocol=5)) for r in recorded) / sample
-        writer, recording = open_writer(config)  # the writer as the recorder builds it
-        journal = EpisodeJournal(config.out)
-        journal.start(recording)
-        published: list[int] = []
+        session = open_session(config)  # the session as the recorder opens it
+        session.start()
+        journal = session.journal
+        assert journal is not None
         journal_s = publish_s = commit_s = 0.0
         commits = frames = 0
         start = time.perf_counter()
         for i in range(episodes):
             base, log = recorded[i % sample]
-            episode = dataclasses.replace(base, seed=config.seed + i)
+            episode = dataclasses.replace(base, seed=config.demo.seed + i)
             t0 = time.perf_counter()
-            path = journal.add(episode, log)
+            path = journal.add(episode, log)  # the session's store, its two halves timed apart
             t1 = time.perf_counter()
-            publish_episode(writer, episode, path)
-            published.append(episode.seed)
+            session.publish(episode, path)
             frames += episode.length
             t2 = time.perf_counter()
             journal_s, publish_s = journal_s + t1 - t0, publish_s + t2 - t1
-            if writer.session_age() >= config.commit_interval:
-                commit_session(writer, journal, published)
+            if session.commit_due():
+                session.commit()
                 commits += 1
                 commit_s += time.perf_counter() - t2
         t2 = time.perf_counter()
-        commit_session(writer, journal, published)
+        session.commit()
         end = time.perf_counter()
         commits, commit_s = commits + 1, commit_s + end - t2
         seconds = end - start
-        journal.remove()
+        session.finish()
         disk = sum(p.stat().st_size for p in config.out.rglob("*") if p.is_file())
         return {
             "eps_min": 60.0 * episodes / seconds,
@@ -250,7 +248,7 @@ def print_conversion(task: str, n: int, workers: int) -> None:
     with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as scratch:
         source = Path(scratch) / "state"
         start = time.perf_counter()
-        record(RecordConfig(task, n, source, mcap=False, workers=workers), progress=False)
+        record(RecordConfig.of(task, n, source, mcap=False, workers=workers), progress=False)
         state_rate = 60 * n / (time.perf_counter() - start)
         print(f"\n{task}: {n} expert episodes recorded with state at {state_rate:.0f} episodes/min; then")
         print(rgb_against_recording(task, source, Path(scratch), n, workers))

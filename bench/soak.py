@@ -130,11 +130,13 @@ def memory(resets: int, recorded: int) -> None:
     work = Path(tempfile.mkdtemp(prefix="kitbench-soak-"))
     tmp = Path(tempfile.gettempdir())
     try:
-        record(RecordConfig(task="AssemblingKits-v1", episodes=10, out=work / "warm", mcap=True), progress=False)
+        record(RecordConfig.of(task="AssemblingKits-v1", episodes=10, out=work / "warm", mcap=True), progress=False)
         temp_before = set(tmp.iterdir())
         rss0, fds0 = _rss_mib(), _fds()
         record(
-            RecordConfig(task="AssemblingKits-v1", episodes=recorded, out=work / "ds", mcap=True, commit_interval=5.0),
+            RecordConfig.of(
+                task="AssemblingKits-v1", episodes=recorded, out=work / "ds", mcap=True, commit_interval=5.0
+            ),
             progress=False,
         )
         rss1, fds1 = _rss_mib(), _fds()

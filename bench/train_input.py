@@ -257,7 +257,6 @@ def run_pipeline(config: Path, data: Path, reader: str, args) -> dict:
 # -- fidelity --------------------------------------------------------------------------------------------
 def fidelity(recipe: Path, data: Path, episodes: int) -> dict:
     """PSNR and worst error of the stored frames against the renderer's, over the first `episodes` episodes."""
-    import dataclasses
 
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -265,7 +264,7 @@ def fidelity(recipe: Path, data: Path, episodes: int) -> dict:
     from kitbench.recording.work import RecordWork
 
     seeds = [json.loads(line)["seed"] for line in (data / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
-    config = dataclasses.replace(load_recipe(recipe, out=data, episodes=1), mcap=False)
+    config = load_recipe(recipe, out=data, episodes=1).replace(mcap=False)
     work = RecordWork(config)
     work.setup()
     dataset = LeRobotDataset("kitbench/bench", root=data, video_backend="pyav", return_uint8=True)

@@ -14,20 +14,28 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from kitbench.config.checks import non_negative_int, positive_int
+from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError
-from kitbench.registration import TASKS, make_env
+from kitbench.registration import TASKS, canonical_task, make_env
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@dataclass(frozen=True)
+@dataclass
 class DemoConfig:
-    out: Path = Path("outputs/demo")
-    episodes: int = 5  # recorded per task
-    eval_episodes: int = 10  # per policy and task (the short suites hold 10 seeds)
-    videos: int = 1  # filmed per expert evaluation
-    workers: int = 1
-    tasks: tuple[str, ...] = tuple(TASKS)
+    # The output folder.
+    out: Path = setting(Path("outputs/demo"))
+    # Expert episodes recorded per task.
+    episodes: int = setting(5, check=positive_int)
+    # Episodes per policy evaluation (the short suites hold 10 seeds).
+    eval_episodes: int = setting(10, check=positive_int)
+    # Episodes filmed per expert evaluation.
+    videos: int = setting(1, check=non_negative_int, cli=False)
+    # Simulator processes.
+    workers: int = setting(1, check=positive_int)
+    # Only this task (repeatable; default every task).
+    tasks: tuple[str, ...] = setting((), flag="--task", repeat=True)
 
 
 def render_task_frames(out_dir: Path, seed: int = 0, tasks=tuple(TASKS)) -> list[Path]:
@@ -66,22 +74,25 @@ def demo_suite(task: str, episodes: int):
 
 def run_demo(config: DemoConfig, say=print) -> dict:
     """Returns, per task, the dataset folder and the evaluation reports (policy -> report dict)."""
-    from kitbench.evaluation.runner import EvalConfig, run_eval, summary_lines
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval, summary_lines
     from kitbench.recording.recorder import RecordConfig, record
 
-    unknown = [t for t in config.tasks if t not in TASKS]
+    tasks = tuple(canonical_task(t) for t in config.tasks) or tuple(TASKS)
+    unknown = [t for t in tasks if t not in TASKS]
     if unknown:
         raise KitbenchError(f"unknown task(s) {', '.join(unknown)}; valid choices: {', '.join(TASKS)}")
+    validate(config)
     out = Path(config.out)
-    suites = {task: demo_suite(task, config.eval_episodes) for task in config.tasks}
-    frames = render_task_frames(out / "frames", tasks=config.tasks)
+    suites = {task: demo_suite(task, config.eval_episodes) for task in tasks}
+    frames = render_task_frames(out / "frames", tasks=tasks)
     say(f"scene snapshots: {out / 'frames'} ({len(frames)} PNG files)")
     results = {}
-    for task in config.tasks:
+    for task in tasks:
         dataset = out / "datasets" / task
         say(f"\n== {task}: recording {config.episodes} expert episodes (rgb + MCAP)")
         summary = record(
-            RecordConfig(
+            RecordConfig.of(
                 task=task,
                 episodes=config.episodes,
                 out=dataset,
@@ -101,12 +112,12 @@ def run_demo(config: DemoConfig, say=print) -> dict:
             shutil.rmtree(report_dir, ignore_errors=True)
             say(f"== {task}: evaluating {policy} on {suites[task].name} ({len(suites[task].seeds)} episodes)")
             reports[policy] = run_eval(
-                EvalConfig(suites[task], policy, report_dir, workers=config.workers, videos=videos)
+                EvalConfig.of(suites[task], policy, report_dir, workers=config.workers, videos=videos)
             )
             for line in summary_lines(reports[policy], report_dir):
                 say(f"  {line}")
         results[task] = {"dataset": dataset, "reports": reports}
-    first = config.tasks[0]
+    first = tasks[0]
     kitbench = command_path("kitbench")
     say("\nnext:")
     say(f"  view an episode: {kitbench} view {out / 'datasets' / first}")

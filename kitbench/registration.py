@@ -17,6 +17,7 @@ import gymnasium as gym
 from kitbench.errors import KitbenchError
 
 if TYPE_CHECKING:
+    from kitbench.envs.interface import KitbenchEnv
     from kitbench.envs.tabletop import TabletopEnv
 
 GYM_NAMESPACE = "kitbench"
@@ -86,13 +87,16 @@ def task_entry(name: str) -> TaskEntry:
     return TASKS[short]
 
 
-def make_env(task: str, **kwargs) -> gym.Env:
+def make_env(task: str, **kwargs) -> KitbenchEnv:
     """`gymnasium.make` for a kitbench task by its short name (or gym id), with a clear error for unknown names,
-    and the step limit of the chosen robot (`TabletopEnv.robot_max_episode_steps`) unless one is given."""
+    and the step limit of the chosen robot (`TabletopEnv.robot_max_episode_steps`) unless one is given; as a
+    `KitbenchEnv`, the interface the rest of kitbench uses."""
+    from kitbench.envs.interface import KitbenchEnv
+
     entry = task_entry(task)
     if kwargs.get("max_episode_steps") is None:
         kwargs.pop("max_episode_steps", None)
         steps = entry.env_class.episode_steps(kwargs.get("robot_uids"))
         if steps != entry.max_episode_steps:
             kwargs["max_episode_steps"] = steps
-    return gym.make(entry.gym_id, **kwargs)
+    return KitbenchEnv(gym.make(entry.gym_id, **kwargs))

@@ -20,6 +20,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from kitbench.config.checks import optional, positive_int, seed as seed_check
+from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError, check_choice
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -79,33 +81,45 @@ def load_published(path: Path = PUBLISHED) -> dict[str, Published]:
     return out
 
 
-@dataclass(frozen=True)
+@dataclass
 class ReproduceConfig:
-    config: str
-    out: Path
-    steps: int | None = None  # the published config's own when None
-    demos: int | None = None
-    eval_episodes: int | None = None  # each suite's first N seeds; None: all
-    seed: int | None = None  # lerobot-train --seed; None: the published run's first
-    workers: int = 1  # recording and evaluation processes
-    published: Path = PUBLISHED
+    # A config in policies/ with a published figure, e.g. act_lift_peg_upright_state.
+    config: str = setting(positional=True)
+    # The working folder (default outputs/reproduce/<config>; a recording there is resumed).
+    out: Path | None = setting(None)
+    # Training steps (default: the published run's).
+    steps: int | None = setting(None, check=optional(positive_int))
+    # Demonstrations (default: the published run's).
+    demos: int | None = setting(None, check=optional(positive_int))
+    # Each suite's first N seeds (default: all).
+    eval_episodes: int | None = setting(None, check=optional(positive_int))
+    # lerobot-train --seed (default: the published run's first).
+    seed: int | None = setting(None, check=optional(seed_check))
+    # Recording and evaluation processes.
+    workers: int = setting(1, check=positive_int)
+    # A published-figures file.
+    published: Path = setting(PUBLISHED, show_default=False)
+
+    def __post_init__(self) -> None:
+        self.config = self.config.removesuffix(".json").rsplit("/", 1)[-1]
+        self.published = Path(self.published)
+
+    @property
+    def folder(self) -> Path:
+        return Path(self.out) if self.out is not None else Path("outputs/reproduce") / self.config
 
 
 def check(config: ReproduceConfig) -> Published:
     published = load_published(config.published)
     check_choice("config", config.config, sorted(published))
-    for name, value in (("steps", config.steps), ("demos", config.demos), ("eval_episodes", config.eval_episodes)):
-        if value is not None and (not isinstance(value, int) or value < 1):
-            raise KitbenchError(f"{name} must be a positive integer, got {value!r}")
-    if config.seed is not None and config.seed < 0:
-        raise KitbenchError(f"seed must be a non-negative integer, got {config.seed}")
+    validate(config)
     entry = published[config.config]
     if not (ROOT / "policies" / f"{config.config}.json").is_file():
         raise KitbenchError(f"no config policies/{config.config}.json for the published figure {config.config!r}")
     if not entry.recipe.is_file():
         raise KitbenchError(f"published figure {config.config!r} names recipe {entry.recipe}, which does not exist")
-    if config.out.exists() and not config.out.is_dir():
-        raise KitbenchError(f"output {config.out} is not a folder; give --out a folder path")
+    if config.folder.exists() and not config.folder.is_dir():
+        raise KitbenchError(f"output {config.folder} is not a folder; give --out a folder path")
     return entry
 
 
@@ -129,10 +143,10 @@ def train_command(config_path: Path, data: Path, out: Path, steps: int | None, s
 
 def reproduce(config: ReproduceConfig, say=print) -> int:
     """Run the whole loop; 0 when the figure falls inside the published interval, 3 when it does not."""
-    import dataclasses
     import shutil
 
-    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
     from kitbench.evaluation.stats import wilson_interval
     from kitbench.evaluation.suite import load_suite
     from kitbench.recording.recorder import load_recipe, record
@@ -142,10 +156,10 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
     config_path = ROOT / "policies" / f"{config.config}.json"
     demos = config.demos or entry.demos
     seed = entry.seeds[0] if config.seed is None else config.seed
-    data, train_dir = config.out / "data", config.out / "train"
+    data, train_dir = config.folder / "data", config.folder / "train"
     say(f"reproducing {config.config}: {demos} demonstrations from {entry.recipe.name}, training seed {seed}")
     recipe = load_recipe(entry.recipe, episodes=demos, out=data, workers=config.workers)
-    recipe = dataclasses.replace(recipe, resume=data.exists(), mcap=False)
+    recipe = recipe.replace(resume=data.exists(), mcap=False)
     summary = record(recipe)
     if summary.exit_code != 0:
         return summary.exit_code
@@ -157,7 +171,7 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
     say(f"training: {THREADS_VAR}={threads} {' '.join(command)}")
     started = time.monotonic()
     env = {**os.environ, THREADS_VAR: threads, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
-    log = config.out / "train.log"
+    log = config.folder / "train.log"
     with log.open("w") as handle:
         status = subprocess.run(command, stdout=handle, stderr=subprocess.STDOUT, env=env, check=False).returncode
     if status != 0:
@@ -170,10 +184,10 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
         if config.eval_episodes is not None:
             suite = suite.first(config.eval_episodes)
         report = run_eval(
-            EvalConfig(
+            EvalConfig.of(
                 suite,
                 f"lerobot:{train_dir}",
-                config.out / f"eval_{name}",
+                config.folder / f"eval_{name}",
                 workers=config.workers,
                 overwrite=True,
                 batch_size=entry.eval_batch_size,
@@ -198,7 +212,7 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
     say(
         f"training: {minutes:.1f} min for {config.steps or entry.steps} steps (reference workload {here:.1f} s{scaled})"
     )
-    (config.out / "reproduce.json").write_text(
+    (config.folder / "reproduce.json").write_text(
         json.dumps(
             {
                 "config": config.config,

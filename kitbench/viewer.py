@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench.config.declare import setting
 from kitbench.errors import KitbenchError
 from kitbench.metadata import read_recording_settings
 
@@ -19,6 +21,16 @@ DEFAULT_SAVE_DIR = Path("outputs/view")
 
 def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+@dataclass
+class ViewSettings:
+    # A dataset folder (LeRobot v3).
+    dataset: Path = setting(positional=True)
+    # The episode's index.
+    episode: int = setting(0, show_default=False)
+    # Write a .rrd file into this folder instead of opening a viewer (default without a display: outputs/view).
+    save: Path | None = setting(None)
 
 
 def view(root: Path, episode: int = 0, save: Path | None = None) -> Path | None:

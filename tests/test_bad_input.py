@@ -84,7 +84,7 @@ def test_a_recording_killed_before_its_first_commit_is_resumed_or_replaced_never
     out = workdir / "ds"
     journal = journal_root(out)
     journal.mkdir()
-    settings = {**RecordConfig(task=TASK, episodes=2, out=out, policy="random").identity(), "fps": 20}
+    settings = {**RecordConfig.of(task=TASK, episodes=2, out=out, policy="random").info().to_json(), "fps": 20}
     (journal / SETTINGS_FILE).write_text(json.dumps(settings))
     before = _tree(workdir)
     assert _error(capsys, [*RECORD, "--out", str(out)]) == (
@@ -163,7 +163,7 @@ def test_the_gym_id_names_a_task_and_the_short_name_is_stored(workdir, capsys, m
     import kitbench.recording.recorder as recorder
 
     assert task_entry(GYM_ID) is task_entry(TASK)
-    assert RecordConfig(task=GYM_ID, episodes=1, out=Path("x")).task == TASK
+    assert RecordConfig.of(task=GYM_ID, episodes=1, out=Path("x")).task == TASK
     assert adhoc_suite(GYM_ID, 2, seed=5).name == f"{TASK}-seeds-5-6"
     recipe, suite = workdir / "recipe.toml", workdir / "suite.toml"
     recipe.write_text(f'[record]\ntask = "{GYM_ID}"\nepisodes = 2\nout = "ds"\n')
@@ -257,7 +257,7 @@ def test_noise_phases_come_comma_separated_and_are_checked_against_the_expert(wo
     seen = []
     monkeypatch.setattr(recorder, "record", lambda config, progress=True: seen.append(config) or recorder.Summary())
     assert cli.main([*expert, "--action-noise", "0.5", "--noise-phases", "transport,align"]) == 0
-    assert [c.noise_phases for c in seen] == [("transport", "align")]
+    assert [c.demo.noise_phases for c in seen] == [("transport", "align")]
 
 
 @pytest.mark.parametrize("summary,status", [({"gave_up": True}, 3), ({"interrupted": True, "signal": 15}, 143)])
@@ -272,8 +272,8 @@ def test_record_passes_max_attempts_on_and_exits_with_the_summary_status(workdir
 
     monkeypatch.setattr(recorder, "record", fake_record)
     assert cli.main([*RECORD, "--max-attempts", "20", "--out", "ds"]) == status
-    assert [c.max_attempts for c in seen] == [20]
-    assert RecordConfig(task=TASK, episodes=2, out=Path("ds")).max_attempts is None  # 10 x episodes
+    assert [c.demo.max_attempts for c in seen] == [20]
+    assert RecordConfig.of(task=TASK, episodes=2, out=Path("ds")).demo.max_attempts is None  # 10 x episodes
     assert _tree(workdir) == []
 
 
@@ -298,12 +298,12 @@ def test_eval_passes_overwrite_on_and_fails_when_its_videos_failed(workdir, caps
 
     def fake_eval(config, progress=True):
         seen.append(config)
-        return _report(video_error="ffmpeg not found") if config.videos else _report()
+        return _report(video_error="ffmpeg not found") if config.output.videos else _report()
 
     monkeypatch.setattr(runner, "run_eval", fake_eval)
     assert cli.main([*EVAL, "--out", "report"]) == 0
     assert cli.main([*EVAL, "--out", "report", "--overwrite", "--videos", "1"]) == 1
-    assert [c.overwrite for c in seen] == [False, True]
+    assert [c.output.overwrite for c in seen] == [False, True]
     printed = capsys.readouterr()
     assert printed.out.count("success 0.0%") == 2  # the summary is printed either way
     assert printed.err == "kitbench eval: videos failed: ffmpeg not found\n"

@@ -18,9 +18,10 @@ import pytest
 from kitbench import cli
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.compare import compare_reports
+from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.report import build_report
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.significance import newcombe_interval, newcombe_paired_interval
 from kitbench.evaluation.suite import Suite, load_suite
 from kitbench.registration import task_entry
@@ -418,7 +419,8 @@ def _keys(report: dict) -> dict:
 def test_real_reports_round_trip(tmp_path, capsys):
     suite = load_suite(ROOT / "eval/suites/lift_peg_upright_short.toml").first(3)
     reports = {
-        policy: run_eval(EvalConfig(suite, policy, tmp_path / policy), progress=False) for policy in ("zero", "expert")
+        policy: run_eval(EvalConfig.of(suite, policy, tmp_path / policy), progress=False)
+        for policy in ("zero", "expert")
     }
     synthetic = make_report(LIFT, outcomes(2, 3), seeds=suite.seeds)
     assert _keys(synthetic) == _keys(reports["expert"]) == _keys(reports["zero"])

@@ -22,7 +22,9 @@ COLUMNS = ("observation.state", "observation.environment_state", "action", "exec
 
 def _source(root: Path, control_mode: str, episodes: int = 3, **kwargs) -> Path:
     """An expert recording with noise (so `executed_action` differs from `action`) and settling."""
-    config = RecordConfig(TASK, episodes, root, control_mode=control_mode, action_noise=0.05, settle_steps=2, **kwargs)
+    config = RecordConfig.of(
+        TASK, episodes, root, control_mode=control_mode, action_noise=0.05, settle_steps=2, **kwargs
+    )
     record(config, progress=False)
     return root
 
@@ -171,7 +173,7 @@ def test_kill_minus_nine_loses_at_most_the_episode_in_flight_and_resume_finishes
         (lambda src, tmp: [str(tmp / "nothing"), "--out", str(tmp / "dst")], "is not a kitbench recording"),
         (
             lambda src, tmp: [str(src), "--obs-mode", "pointclouds", "--out", str(tmp / "dst")],
-            "unknown obs_mode 'pointclouds' for recording; valid choices: state, rgb, rgbd",
+            "unknown obs_mode 'pointclouds'; valid choices: state, rgb, rgbd",
         ),
         (
             lambda src, tmp: [str(src), "--control-mode", "pd_joint_vel", "--out", str(tmp / "dst")],

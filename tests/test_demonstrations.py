@@ -179,7 +179,9 @@ def test_record_stores_the_options_and_clean_labels(tmp_path):
     from kitbench.recording.recorder import record
 
     out = tmp_path / "noisy"
-    config = RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, action_noise=1.0, settle_steps=3, mcap=False)
+    config = RecordConfig.of(
+        task="LiftPegUpright-v1", episodes=2, out=out, action_noise=1.0, settle_steps=3, mcap=False
+    )
     summary = record(config, progress=False)
     assert summary.stored == 2
     settings = json.loads((out / RECORDING_FILE).read_text())
@@ -190,7 +192,7 @@ def test_record_stores_the_options_and_clean_labels(tmp_path):
     assert not np.allclose(labels, executed)
     # a resumed recording must use the same demonstration options
     with pytest.raises(ValueError, match=r"settle_steps: recorded 3, asked 0"):
-        validate(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, action_noise=1.0, resume=True))
+        validate(RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out, action_noise=1.0, resume=True))
 
 
 def test_record_stores_the_noise_phases_from_a_recipe(tmp_path):
@@ -204,7 +206,7 @@ def test_record_stores_the_noise_phases_from_a_recipe(tmp_path):
         'action_noise = 1.0\nnoise_phases = ["swing"]\nmcap = false\n'
     )
     config = load_recipe(recipe)
-    assert config.noise_phases == ("swing",)
+    assert config.demo.noise_phases == ("swing",)
     assert record(config, progress=False).stored == 1
     assert json.loads((out / RECORDING_FILE).read_text())["noise_phases"] == ["swing"]
     validate(load_recipe(recipe, resume=True, episodes=2))  # the same phases resume
@@ -216,7 +218,7 @@ def test_noise_phases_for_an_expert_that_declares_none_say_so(tmp_path, monkeypa
     from kitbench.planning.assembling_kits import AssemblingKitsPlanner
 
     monkeypatch.setattr(AssemblingKitsPlanner, "phases", ())
-    config = RecordConfig(
+    config = RecordConfig.of(
         task="AssemblingKits-v1", episodes=1, out=tmp_path / "never", action_noise=0.5, noise_phases=("insert",)
     )
     with pytest.raises(ValueError, match=r"^noise_phases: the AssemblingKits-v1 expert declares no phases"):
@@ -261,6 +263,6 @@ FETCH_PHASES = "approach, insert, grasp, swing, place, done, failed"
 def test_bad_demonstration_options_are_refused_before_anything_is_written(tmp_path, options, needle):
     out = tmp_path / "never"
     with pytest.raises(ValueError) as err:
-        validate(RecordConfig(task="LiftPegUpright-v1", episodes=1, out=out, **options))
+        validate(RecordConfig.of(task="LiftPegUpright-v1", episodes=1, out=out, **options))
     assert str(err.value) == needle
     assert not out.exists()

@@ -65,7 +65,7 @@ def _assert_same_dataset(a: Path, b: Path) -> None:
 def reference(tmp_path_factory) -> Path:
     """An uninterrupted recording that interrupted ones must end up equal to."""
     out = tmp_path_factory.mktemp("reference") / "ds"
-    record(RecordConfig(task=TASK, episodes=24, out=out, commit_interval=30.0), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=24, out=out, commit_interval=30.0), progress=False)
     return out
 
 
@@ -141,7 +141,7 @@ def test_only_success_stops_at_the_attempt_limit(tmp_path, capsys):
 
 def test_default_attempt_limit_is_ten_per_episode(tmp_path):
     summary = record(
-        RecordConfig(task=TASK, episodes=1, out=tmp_path / "ds", policy="random", only_success=True, mcap=False),
+        RecordConfig.of(task=TASK, episodes=1, out=tmp_path / "ds", policy="random", only_success=True, mcap=False),
         progress=False,
     )
     assert summary.gave_up and summary.attempted == 10 and summary.stored == 0 and summary.exit_code == 3
@@ -149,10 +149,10 @@ def test_default_attempt_limit_is_ten_per_episode(tmp_path):
 
 def test_a_fresh_recording_never_replays_a_stale_journal(tmp_path):
     out = tmp_path / "ds"
-    record(RecordConfig(task=TASK, episodes=2, out=out, mcap=False), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=2, out=out, mcap=False), progress=False)
     journal = EpisodeJournal(out)
     assert not journal.exists()  # complete: nothing left to replay
-    record(RecordConfig(task=TASK, episodes=1, out=tmp_path / "other", seed=50, mcap=False), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=1, out=tmp_path / "other", seed=50, mcap=False), progress=False)
     _, episodes = _dataset(tmp_path / "other")
     assert [e["seed"] for e in episodes] == [50]
 
@@ -161,10 +161,10 @@ def test_recording_leaks_no_files_or_descriptors(tmp_path):
     def open_fds() -> int:
         return len(os.listdir("/proc/self/fd"))
 
-    record(RecordConfig(task=TASK, episodes=2, out=tmp_path / "warm", mcap=True), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=2, out=tmp_path / "warm", mcap=True), progress=False)
     before = open_fds()
     for i in range(3):
-        record(RecordConfig(task=TASK, episodes=2, out=tmp_path / f"ds{i}", mcap=True), progress=False)
+        record(RecordConfig.of(task=TASK, episodes=2, out=tmp_path / f"ds{i}", mcap=True), progress=False)
     assert open_fds() <= before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds0", "ds1", "ds2", "warm"]
 
@@ -184,13 +184,13 @@ def test_a_journal_with_episodes_is_never_overwritten_by_accident(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     with pytest.raises(KitbenchError, match=r"an unfinished recording of .*ds exists .*ds.journal.*pass --resume"):
-        record(RecordConfig(task=TASK, episodes=5, out=out, mcap=False), progress=False)
+        record(RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False), progress=False)
     with pytest.raises(KitbenchError, match=r"cannot resume .* different settings .*control_mode"):
         record(
-            RecordConfig(task=TASK, episodes=5, out=out, mcap=False, resume=True, control_mode="pd_joint_pos"),
+            RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False, resume=True, control_mode="pd_joint_pos"),
             progress=False,
         )
-    summary = record(RecordConfig(task=TASK, episodes=5, out=out, mcap=False, resume=True), progress=False)
+    summary = record(RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False, resume=True), progress=False)
     assert summary.stored == 5 and [e["seed"] for e in _dataset(out)[1]] == [0, 1, 2, 3, 4]
 
 
@@ -212,7 +212,7 @@ def test_an_episode_whose_simulation_failed_is_not_stored(tmp_path, monkeypatch,
     monkeypatch.setattr(TabletopEnv, "reset", reset_noting_the_seed)
     monkeypatch.setattr(TabletopEnv, "step", step_failing_on_seed_1)
     out = tmp_path / "ds"
-    summary = record(RecordConfig(task=TASK, episodes=3, out=out), progress=False)
+    summary = record(RecordConfig.of(task=TASK, episodes=3, out=out), progress=False)
     assert summary.physics_errors == 1 and summary.stored == 3 and summary.attempted == 4
     assert "seed 1: not stored, the simulation failed: obj left the workspace" in capsys.readouterr().err
     assert [e["seed"] for e in _dataset(out)[1]] == [0, 2, 3]

@@ -68,7 +68,7 @@ def test_bad_executor_settings_are_one_line_errors(config, message):
 
 
 def test_suites_and_recipes_choose_the_executor_and_flags_override_them(tmp_path):
-    from kitbench.cli import build_parser, eval_config_from_args
+    from kitbench.evaluation.config import eval_config
     from kitbench.recording.config import load_recipe
 
     suite = tmp_path / "suite.toml"
@@ -76,16 +76,22 @@ def test_suites_and_recipes_choose_the_executor_and_flags_override_them(tmp_path
         '[suite]\ntask = "LiftPegUpright-v1"\nseeds = { start = 5, count = 3 }\n'
         'executor = "ray"\nworkers = 4\nray_address = "127.0.0.1:6379"\n'
     )
-    parse = build_parser().parse_args
-    from_suite = eval_config_from_args(parse(["eval", "--suite", str(suite)]))
-    assert (from_suite.executor, from_suite.workers, from_suite.ray_address) == ("ray", 4, "127.0.0.1:6379")
-    flags = eval_config_from_args(parse(["eval", "--suite", str(suite), "--executor", "local", "--workers", "2"]))
-    assert (flags.executor, flags.workers) == ("local", 2)
+    from_suite = eval_config({"suite_file": suite})
+    assert from_suite.executor == ExecutorConfig("ray", 4, "127.0.0.1:6379")
+    flags = eval_config({"suite_file": suite, "executor": "local", "workers": 2})
+    assert (flags.executor.executor, flags.executor.workers) == ("local", 2)
     assert from_suite.suite == flags.suite  # where it runs is not part of what the suite measures
     recipe = tmp_path / "recipe.toml"
     recipe.write_text(
         '[record]\ntask = "LiftPegUpright-v1"\nepisodes = 2\nout = "x"\nexecutor = "ray"\nshard_episodes = 10\n'
     )
     config = load_recipe(recipe, workers=3)
-    assert (config.executor, config.workers, config.shard_episodes, config.ray_address) == ("ray", 3, 10, "auto")
-    assert "executor" not in config.identity() and "shard_episodes" not in config.identity()
+    executor = config.executor
+    assert (executor.executor, executor.workers, executor.shard_episodes, executor.ray_address) == (
+        "ray",
+        3,
+        10,
+        "auto",
+    )
+    identity = config.info().identity()
+    assert "executor" not in identity and "shard_episodes" not in identity

@@ -232,7 +232,7 @@ def test_wrong_action_shape_raises():
             {"reward_mode": "shaped"},
             "unknown reward_mode 'shaped'; valid choices: dense, normalized_dense, sparse, none",
         ),
-        ({"robot_uids": "ur5"}, "unknown robot_uids 'ur5'; valid choices: panda, panda_wristcam"),
+        ({"robot_uids": "ur5"}, "unknown robot_uids 'ur5'; valid choices: fetch, panda, panda_wristcam"),
         (
             {"robot_uids": "panda_wristcam"},
             "robot 'panda_wristcam' is not supported by LiftPegUprightEnv; valid choices: panda",

@@ -8,7 +8,6 @@ into the return (2.6% on one AssemblingKits seed over 200 steps); outcomes and l
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import subprocess
@@ -18,7 +17,8 @@ import numpy as np
 import pytest
 
 from kitbench.errors import KitbenchError
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import adhoc_suite
 from kitbench.recording.recorder import RecordConfig, record
 from tests.lerobot_cli import BIN, OFFLINE, lerobot_train, small_config
@@ -44,7 +44,7 @@ def checkpoints(tmp_path_factory):
         if key not in data:
             root = base / f"{task}_{obs_mode}"
             record(
-                RecordConfig(task, 2, root, obs_mode=obs_mode, control_mode="pd_ee_delta_pose", mcap=False),
+                RecordConfig.of(task, 2, root, obs_mode=obs_mode, control_mode="pd_ee_delta_pose", mcap=False),
                 progress=False,
             )
             data[key] = root
@@ -60,7 +60,7 @@ def checkpoints(tmp_path_factory):
 
 def _eval(task, obs_mode, policy, out, batch_size, control_mode="pd_ee_delta_pose", **kwargs):
     suite = adhoc_suite(task, SEEDS, 1_000_000, obs_mode=obs_mode, control_mode=control_mode)
-    return run_eval(EvalConfig(suite, policy, out, batch_size=batch_size, device="cpu", **kwargs), progress=False)
+    return run_eval(EvalConfig.of(suite, policy, out, batch_size=batch_size, device="cpu", **kwargs), progress=False)
 
 
 def _kitbench_eval(*args: str) -> subprocess.CompletedProcess:
@@ -149,7 +149,7 @@ def test_cuda_without_cuda_is_refused_in_one_line_and_nothing_is_written(tmp_pat
 )
 def test_bad_batch_settings_are_refused_before_anything_is_written(tmp_path, field, value, needle):
     suite = adhoc_suite("LiftPegUpright-v1", 2, 0)
-    config = dataclasses.replace(EvalConfig(suite, "zero", tmp_path / "report"), **{field: value})
+    config = EvalConfig.of(suite, "zero", tmp_path / "report").replace(**{field: value})
     with pytest.raises(KitbenchError) as error:
         run_eval(config, progress=False)
     assert needle in str(error.value)
@@ -196,7 +196,7 @@ def test_policy_options_change_inference_and_are_reported(checkpoints, tmp_path)
     spec = f"lerobot:{checkpoint}"
     suite = adhoc_suite("LiftPegUpright-v1", 2, 0, control_mode="pd_ee_delta_pose")
     options = (("temporal_ensemble_coeff", 0.01), ("n_action_steps", 1))
-    report = run_eval(EvalConfig(suite, spec, tmp_path / "r", device="cpu", policy_options=options), progress=False)
+    report = run_eval(EvalConfig.of(suite, spec, tmp_path / "r", device="cpu", policy_options=options), progress=False)
     assert report["policy_options"] == {"temporal_ensemble_coeff": 0.01, "n_action_steps": 1}
     assert "`temporal_ensemble_coeff=0.01`" in (tmp_path / "r" / "report.md").read_text()
     assert "policy_options" not in _eval("LiftPegUpright-v1", "state", spec, tmp_path / "plain", 1)
@@ -223,7 +223,7 @@ def test_a_bad_policy_option_is_refused_before_any_episode_runs(checkpoints, tmp
 
 def test_policy_options_need_a_policy_with_settings(tmp_path):
     suite = adhoc_suite("LiftPegUpright-v1", 2, 0)
-    config = EvalConfig(suite, "expert", tmp_path / "r", policy_options=(("n_action_steps", 1),))
+    config = EvalConfig.of(suite, "expert", tmp_path / "r", policy_options=(("n_action_steps", 1),))
     with pytest.raises(KitbenchError, match="need a lerobot:<checkpoint> policy; 'expert' has no settings"):
         run_eval(config, progress=False)
     assert not (tmp_path / "r").exists()

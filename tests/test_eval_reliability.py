@@ -13,9 +13,10 @@ import pytest
 
 import kitbench  # noqa: F401
 from kitbench.errors import KitbenchError
+from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.report import build_report, markdown
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import load_suite
 from kitbench.evaluation.work import EvalWork
 from kitbench.tasks.lift_peg_upright import LiftPegUprightEnv
@@ -36,10 +37,10 @@ def test_without_a_render_device_the_report_is_kept_and_says_why_there_are_no_vi
         "import json, sys\n"
         "from pathlib import Path\n"
         "from kitbench.doctor import vulkan_error\n"
-        "from kitbench.evaluation.runner import EvalConfig, run_eval\n"
+        "from kitbench.evaluation.config import EvalConfig\nfrom kitbench.evaluation.runner import run_eval\n"
         "from kitbench.evaluation.suite import load_suite\n"
         f"suite = load_suite({str(SHORT)!r}).first(2)\n"
-        "report = run_eval(EvalConfig(suite, 'expert', Path(sys.argv[1]), videos=1), progress=False)\n"
+        "report = run_eval(EvalConfig.of(suite, 'expert', Path(sys.argv[1]), videos=1), progress=False)\n"
         "print(json.dumps({'video_error': report['output'].get('video_error'), 'doctor': vulkan_error()}))\n"
     )
     done = subprocess.run(
@@ -74,7 +75,7 @@ def test_videos_made_before_a_failure_stay_listed(tmp_path, monkeypatch):
 
     monkeypatch.setattr(EvalWork, "film", film_once)
     monkeypatch.setattr("kitbench.doctor.vulkan_error", lambda: None)  # this machine could render
-    report = run_eval(EvalConfig(_suite(3), "zero", tmp_path / "report", videos=2), progress=False)
+    report = run_eval(EvalConfig.of(_suite(3), "zero", tmp_path / "report", videos=2), progress=False)
     assert report["output"]["video_error"] == "ValueError: encoder gave up"
     (video,) = report["output"]["videos"]
     assert video["seed"] == 1_000_000 and video["matches_scored_episode"]
@@ -89,7 +90,7 @@ def test_an_existing_report_folder_is_refused_and_left_alone(tmp_path):
     out.mkdir()
     (out / "report.json").write_text("the last evaluation")
     with pytest.raises(KitbenchError) as err:
-        run_eval(EvalConfig(_suite(1), "zero", out), progress=False)
+        run_eval(EvalConfig.of(_suite(1), "zero", out), progress=False)
     assert str(err.value) == f"report folder {out} exists; pass --overwrite to replace it"
     assert [p.name for p in out.iterdir()] == ["report.json"]
     assert (out / "report.json").read_text() == "the last evaluation"
@@ -99,7 +100,7 @@ def test_a_file_as_report_folder_is_refused(tmp_path):
     out = tmp_path / "report"
     out.write_text("a file")
     with pytest.raises(KitbenchError, match=rf"^report folder {out} is a file; --out must be a folder") as err:
-        run_eval(EvalConfig(_suite(1), "zero", out, overwrite=True), progress=False)
+        run_eval(EvalConfig.of(_suite(1), "zero", out, overwrite=True), progress=False)
     assert "\n" not in str(err.value)
     assert out.read_text() == "a file" and [p.name for p in tmp_path.iterdir()] == ["report"]
 
@@ -110,7 +111,7 @@ def test_overwrite_replaces_the_report_and_nothing_else(tmp_path):
     (out / "plots" / "stale.png").write_bytes(b"")
     (out / "report.json").write_text("the last evaluation")
     (out / "notes.txt").write_text("mine")
-    report = run_eval(EvalConfig(_suite(1), "zero", out, overwrite=True), progress=False)
+    report = run_eval(EvalConfig.of(_suite(1), "zero", out, overwrite=True), progress=False)
     assert json.loads((out / "report.json").read_text())["episodes"] == report["episodes"] == 1
     assert not (out / "plots" / "stale.png").exists()
     assert (out / "notes.txt").read_text() == "mine"

@@ -12,11 +12,12 @@ import pytest
 
 import kitbench
 from kitbench.envs.grasp import GraspHistory
+from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.outcomes import failure_category
 from kitbench.evaluation.plots import error_bars
 from kitbench.evaluation.report import without_timing
-from kitbench.evaluation.runner import EvalConfig, pick_video_seeds, run_eval
+from kitbench.evaluation.runner import pick_video_seeds, run_eval
 from kitbench.evaluation.stats import describe, rate, wilson_interval
 from kitbench.evaluation.suite import Suite, adhoc_suite, load_suite
 
@@ -216,7 +217,7 @@ def _suite(task, n, **modes):
 @pytest.fixture(scope="module")
 def expert_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("eval") / "expert"
-    return out, run_eval(EvalConfig(_suite("LiftPegUpright-v1", 6), "expert", out), progress=False)
+    return out, run_eval(EvalConfig.of(_suite("LiftPegUpright-v1", 6), "expert", out), progress=False)
 
 
 def test_expert_report_has_every_field_and_scores_like_its_benchmark(expert_report):
@@ -240,7 +241,7 @@ def test_expert_report_has_every_field_and_scores_like_its_benchmark(expert_repo
 
 
 def test_random_policy_scores_zero_and_failures_are_categorised(tmp_path):
-    report = run_eval(EvalConfig(_suite("LiftPegUpright-v1", 4), "random", tmp_path), progress=False)
+    report = run_eval(EvalConfig.of(_suite("LiftPegUpright-v1", 4), "random", tmp_path), progress=False)
     assert report["success"]["count"] == 0
     assert sum(report["failure_categories"].values()) == 4
     assert all(e["length"] == 50 for e in report["per_episode"])
@@ -248,8 +249,8 @@ def test_random_policy_scores_zero_and_failures_are_categorised(tmp_path):
 
 def test_two_workers_give_the_same_report_as_one(tmp_path):
     suite = _suite("AssemblingKits-v1", 4)
-    one = run_eval(EvalConfig(suite, "random", tmp_path / "w1"), progress=False)
-    two = run_eval(EvalConfig(suite, "random", tmp_path / "w2", workers=2), progress=False)
+    one = run_eval(EvalConfig.of(suite, "random", tmp_path / "w1"), progress=False)
+    two = run_eval(EvalConfig.of(suite, "random", tmp_path / "w2", workers=2), progress=False)
     assert without_timing(one) == without_timing(two)
     assert {row["shape_id"] for row in one["per_shape"]} == {e["config"]["shape_id"] for e in one["per_episode"]}
     assert set(one["criteria"]) == {"pos_correct", "rot_correct", "in_slot"}
@@ -257,12 +258,12 @@ def test_two_workers_give_the_same_report_as_one(tmp_path):
 
 def test_same_suite_same_numbers(expert_report, tmp_path):
     _, first = expert_report
-    again = run_eval(EvalConfig(_suite("LiftPegUpright-v1", 6), "expert", tmp_path), progress=False)
+    again = run_eval(EvalConfig.of(_suite("LiftPegUpright-v1", 6), "expert", tmp_path), progress=False)
     assert without_timing(again) == without_timing(first)
 
 
 def test_videos_replay_the_scored_episodes(tmp_path, needs_vulkan):
-    report = run_eval(EvalConfig(_suite("LiftPegUpright-v1", 2), "expert", tmp_path, videos=1), progress=False)
+    report = run_eval(EvalConfig.of(_suite("LiftPegUpright-v1", 2), "expert", tmp_path, videos=1), progress=False)
     (video,) = report["output"]["videos"]
     assert video["matches_scored_episode"] and video["success"]
     import av

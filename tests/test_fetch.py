@@ -197,7 +197,9 @@ def test_fetch_episodes_are_deterministic():
 def test_fetch_is_refused_by_a_task_that_does_not_support_it():
     with pytest.raises(KitbenchError, match=r"robot 'fetch' is not supported by AssemblingKitsEnv; valid choices: "):
         gym.make("kitbench/AssemblingKits-v1", robot_uids="fetch")
-    with pytest.raises(KitbenchError, match=r"unknown robot_uids 'fetchh'; valid choices: panda, .*fetch"):
+    with pytest.raises(
+        KitbenchError, match=r"unknown robot_uids 'fetchh'; valid choices: fetch, panda, panda_wristcam"
+    ):
         gym.make(LPU, robot_uids="fetchh")
 
 
@@ -228,7 +230,9 @@ def test_a_fetch_recording_round_trips_through_stock_lerobot(tmp_path):
     from kitbench.recording.recorder import record
 
     out = tmp_path / "fetch"
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, policy="random", robot="fetch"), progress=False)
+    record(
+        RecordConfig.of(task="LiftPegUpright-v1", episodes=2, out=out, policy="random", robot="fetch"), progress=False
+    )
     dataset = LeRobotDataset("kitbench/LiftPegUpright-v1", root=out)
     assert dataset.meta.robot_type == "fetch"
     assert dataset.meta.features["observation.state"]["names"][-3:] == ["base_x", "base_y", "base_yaw"]
@@ -240,7 +244,7 @@ def test_a_fetch_recording_round_trips_through_stock_lerobot(tmp_path):
         topics = {channel.topic for _, channel, _ in make_reader(f).iter_messages()}
     assert {"/tf", "/joint_states", "/scene"} <= topics
     with pytest.raises(KitbenchError, match=r"cannot resume .*\(robot: recorded 'fetch', asked None\)"):
-        record(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, policy="random", resume=True))
+        record(RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out, policy="random", resume=True))
 
 
 class _TrainedOn:
@@ -256,14 +260,15 @@ class _TrainedOn:
 
 
 def test_a_policy_trained_on_one_robot_runs_on_it_and_is_refused_on_the_other():
+    from kitbench.evaluation.config import COMMAND_LINE
     from kitbench.evaluation.runner import fit_suite_to_policy
     from kitbench.evaluation.suite import adhoc_suite
 
     suite = adhoc_suite("LiftPegUpright-v1", 2)
-    assert fit_suite_to_policy(suite, _TrainedOn("fetch"), frozenset()).robot_uid == "fetch"
+    assert fit_suite_to_policy(suite, _TrainedOn("fetch"), {}).robot_uid == "fetch"
     panda = adhoc_suite("LiftPegUpright-v1", 2, robot="panda")
     with pytest.raises(KitbenchError, match=r"trained on robot fetch but this evaluation runs panda; .*--robot fetch"):
-        fit_suite_to_policy(panda, _TrainedOn("fetch"), frozenset({"robot"}))
+        fit_suite_to_policy(panda, _TrainedOn("fetch"), {"robot": COMMAND_LINE})
     with pytest.raises(KitbenchError, match=r"robot 'fetch' is not supported by AssemblingKits-v1"):
         adhoc_suite("AssemblingKits-v1", 2, robot="fetch")
 
@@ -275,7 +280,7 @@ def test_the_dataset_card_names_the_joints_a_fetch_expert_holds_still(tmp_path):
     from kitbench.recording.recorder import record
 
     out = tmp_path / "fetch"
-    config = RecordConfig(
+    config = RecordConfig.of(
         task="LiftPegUpright-v1", episodes=2, out=out, control_mode="pd_joint_pos", robot="fetch", mcap=False
     )
     record(config, progress=False)

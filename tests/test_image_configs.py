@@ -4,7 +4,6 @@ the CPU), and score the checkpoint with `kitbench eval` on camera observations."
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import subprocess
 from pathlib import Path
@@ -30,7 +29,7 @@ def datasets(tmp_path_factory):
             continue
         data = base / Path(root).name
         recipe = load_recipe(ROOT / "datasets" / f"{Path(root).name}.toml", episodes=EPISODES, out=data, workers=1)
-        record(dataclasses.replace(recipe, mcap=False), progress=False)
+        record(recipe.replace(mcap=False), progress=False)
         out[root] = data
     return out
 

@@ -25,7 +25,7 @@ def checkpoint(tmp_path_factory):
     base = tmp_path_factory.mktemp("lerobot")
     data = base / "lpu_state"
     # the shipped config's control mode (its in-training evaluation runs the env in it)
-    config = RecordConfig(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False, control_mode="pd_joint_pos")
+    config = RecordConfig.of(task="LiftPegUpright-v1", episodes=5, out=data, mcap=False, control_mode="pd_joint_pos")
     record(config, progress=False)
     out = base / "train"
     log = lerobot_train(
@@ -109,12 +109,15 @@ def test_kitbench_eval_scores_the_trained_checkpoint(checkpoint, tmp_path):
 
 
 def test_kitbench_eval_refuses_another_control_mode_than_the_training_one(checkpoint):
-    from kitbench.evaluation.runner import EvalConfig, validate
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import validate
     from kitbench.evaluation.suite import adhoc_suite
 
     suite = adhoc_suite("LiftPegUpright-v1", 1, control_mode="pd_joint_delta_pos")
     with pytest.raises(ValueError, match=r"trained on pd_joint_pos actions.*--control-mode pd_joint_pos"):
-        validate(EvalConfig(suite, f"lerobot:{checkpoint}", Path("unused"), explicit=frozenset({"control_mode"})))
+        validate(
+            EvalConfig.of(suite, f"lerobot:{checkpoint}", Path("unused"), origins={"control_mode": "command line"})
+        )
 
 
 def test_mismatched_policy_lists_expected_and_provided(checkpoint):

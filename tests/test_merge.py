@@ -21,7 +21,7 @@ TASK = "LiftPegUpright-v1"
 
 
 def _record(out: Path, seed: int, episodes: int, **settings) -> Path:
-    record(RecordConfig(task=TASK, episodes=episodes, out=out, seed=seed, **settings), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=episodes, out=out, seed=seed, **settings), progress=False)
     return out
 
 

@@ -42,7 +42,7 @@ def recordings(tmp_path_factory):
     for task, mode in [*RECORDINGS, ("LiftPegUpright-v1", "rgb")]:
         root = base / f"{task}_{mode}"
         record(
-            RecordConfig(
+            RecordConfig.of(
                 task=task,
                 episodes=1,
                 out=root,
@@ -274,14 +274,14 @@ def test_lerobot_doctor_finds_no_failure_in_depth_that_a_camera_recording_lacks(
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [
-        ({"obs_mode": "state_dict"}, "unknown obs_mode 'state_dict' for recording; valid choices: state, rgb, rgbd, "),
+        ({"obs_mode": "state_dict"}, "unknown obs_mode 'state_dict'; valid choices: state, rgb, rgbd, "),
         ({"obs_mode": "pointclouds"}, "valid choices: state, rgb, rgbd, depth, segmentation, rgb+depth"),
         ({"obs_mode": "pointcloud", "pointcloud_points": 0}, "pointcloud_points must be a positive integer, got 0"),
     ],
 )
 def test_a_mode_a_dataset_cannot_hold_is_refused_before_anything_is_written(tmp_path, kwargs, needle):
     out = tmp_path / "never"
-    config = RecordConfig(task="LiftPegUpright-v1", episodes=1, out=out, **kwargs)
+    config = RecordConfig.of(task="LiftPegUpright-v1", episodes=1, out=out, **kwargs)
     with pytest.raises(KitbenchError) as error:
         record(config, progress=False)
     assert needle in str(error.value) and "\n" not in str(error.value)

@@ -14,7 +14,7 @@ import pytest
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.planning.lift_peg_upright_fetch import FetchLiftPegUprightPlanner
 from kitbench.planning.poses import pose_matrix, rotation_angle
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.policies.joint_targets import joint_target_to_action
 
 # Seeds whose peg centres spread over x in [-0.1, 0.1] (x0: -0.091 .. 0.084).
 SEEDS = (0, 1, 2, 3, 5, 8, 9, 13)

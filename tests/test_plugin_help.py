@@ -47,9 +47,10 @@ def test_lerobot_eval_help_documents_every_kitbench_option():
     for option, words in {
         "--env.task": "LiftPegUpright-v1 or AssemblingKits-v1",
         "--env.obs_type": "the obs mode the dataset was recorded in: rgbd, depth, segmentation",
-        "--env.pointcloud_points": "points per frame, as the dataset stores them",
+        "--env.pointcloud_points": "Points per frame with obs_mode pointcloud",
         "--env.depth_unit": "lerobot-train's --dataset.depth_output_unit",
-        "--env.control_mode": "must be the one the training dataset was recorded in",
+        "--env.control_mode": "a trained policy must act in the one its training dataset was recorded in",
+        "--env.robot": "One of the task's robots",
         "--env.episode_length": "default: the task's own step limit",
         "--env.perturbations": "Robustness perturbations by name and level",
     }.items():

@@ -48,11 +48,12 @@ def test_on_a_terminal_it_is_a_tqdm_bar():
 def test_the_video_pass_of_an_evaluation_has_its_own_progress(needs_vulkan, tmp_path, capsys):
     from pathlib import Path
 
-    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
     from kitbench.evaluation.suite import load_suite
 
     suite = load_suite(Path(__file__).resolve().parents[1] / "eval/suites/lift_peg_upright_short.toml").first(2)
-    run_eval(EvalConfig(suite, "zero", tmp_path / "report", videos=2), progress=True)
+    run_eval(EvalConfig.of(suite, "zero", tmp_path / "report", videos=2), progress=True)
     lines = capsys.readouterr().err.splitlines()
     assert any(line.startswith("eval LiftPegUpright-v1: 2/2") for line in lines)
     assert lines[-1].startswith("videos: 2/2 (100%)")  # off a terminal: its last line, after scoring's

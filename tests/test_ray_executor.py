@@ -18,7 +18,8 @@ import pytest
 from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
 from kitbench.engine.ray_executor import RayExecutor
 from kitbench.errors import KitbenchError
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import load_suite
 from kitbench.recording.recorder import RecordConfig, record
 from tests.engine_work import DiesOnceWork, SleepWork
@@ -82,7 +83,7 @@ def _same_content(a: Path, b: Path) -> None:
 @pytest.fixture(scope="module")
 def local_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("local") / "lpu"
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=EPISODES, out=out), progress=False)
+    record(RecordConfig.of(task="LiftPegUpright-v1", episodes=EPISODES, out=out), progress=False)
     return out
 
 
@@ -117,7 +118,7 @@ def test_more_workers_than_the_cluster_has_cpus_is_refused(cluster):
 # -- record and eval ---------------------------------------------------------------------------------
 def test_record_on_ray_writes_the_same_dataset_as_one_local_worker(cluster, local_dataset, tmp_path):
     out = tmp_path / "lpu"
-    config = RecordConfig(
+    config = RecordConfig.of(
         task="LiftPegUpright-v1", episodes=EPISODES, out=out, executor="ray", workers=2, ray_address=cluster.address
     )
     summary = record(config, progress=False)
@@ -127,7 +128,7 @@ def test_record_on_ray_writes_the_same_dataset_as_one_local_worker(cluster, loca
 
 def test_sharded_recording_on_ray_writes_the_same_dataset_as_one_local_writer(cluster, local_dataset, tmp_path):
     out = tmp_path / "lpu"
-    config = RecordConfig(
+    config = RecordConfig.of(
         task="LiftPegUpright-v1",
         episodes=EPISODES,
         out=out,
@@ -147,8 +148,8 @@ def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(needs_vulka
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     settings = {"task": "LiftPegUpright-v1", "episodes": 2, "obs_mode": "rgb", "mcap": False}
-    record(RecordConfig(**settings, out=tmp_path / "local"), progress=False)
-    on_ray = RecordConfig(
+    record(RecordConfig.of(**settings, out=tmp_path / "local"), progress=False)
+    on_ray = RecordConfig.of(
         **settings,
         out=tmp_path / "ray",
         executor="ray",
@@ -167,9 +168,9 @@ def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(needs_vulka
 
 def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
     suite = load_suite(SHORT).first(EPISODES)
-    local = run_eval(EvalConfig(suite, "random", tmp_path / "local"), progress=False)
+    local = run_eval(EvalConfig.of(suite, "random", tmp_path / "local"), progress=False)
     ray_run = run_eval(
-        EvalConfig(suite, "random", tmp_path / "ray", workers=2, executor="ray", ray_address=cluster.address),
+        EvalConfig.of(suite, "random", tmp_path / "ray", workers=2, executor="ray", ray_address=cluster.address),
         progress=False,
     )
     assert ray_run["timing"]["executor"] == "ray" and ray_run["timing"]["workers"] == 2
@@ -267,7 +268,7 @@ def test_an_unreachable_ray_address_is_refused_before_anything_is_written(tmp_pa
     started = time.monotonic()
     with pytest.raises(KitbenchError) as err:
         record(
-            RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, executor="ray", ray_address="127.0.0.1:9"),
+            RecordConfig.of(task="LiftPegUpright-v1", episodes=2, out=out, executor="ray", ray_address="127.0.0.1:9"),
             progress=False,
         )
     assert str(err.value).startswith("no Ray cluster answers at ray_address '127.0.0.1:9'")
@@ -276,7 +277,7 @@ def test_an_unreachable_ray_address_is_refused_before_anything_is_written(tmp_pa
     report = tmp_path / "report"
     with pytest.raises(KitbenchError, match="no Ray cluster answers"):
         run_eval(
-            EvalConfig(load_suite(SHORT).first(2), "zero", report, executor="ray", ray_address="127.0.0.1:9"),
+            EvalConfig.of(load_suite(SHORT).first(2), "zero", report, executor="ray", ray_address="127.0.0.1:9"),
             progress=False,
         )
     assert list(tmp_path.iterdir()) == []
@@ -314,8 +315,37 @@ def test_results_are_numpy_episodes_not_paths(cluster):
     """What a Ray worker sends back holds the episode and its log, nothing on the worker's disk."""
     from kitbench.recording.work import RecordWork
 
-    config = RecordConfig(task="LiftPegUpright-v1", episodes=1, out=Path("unused"))
+    config = RecordConfig.of(task="LiftPegUpright-v1", episodes=1, out=Path("unused"))
     with RolloutEngine(make_executor(ExecutorConfig("ray", 1, cluster.address)), RecordWork(config)) as engine:
         ((seed, (episode, mcap)),) = list(engine.results([3]))
     assert seed == 3 and episode.seed == 3 and isinstance(mcap, bytes) and mcap.startswith(b"\x89MCAP")
     assert isinstance(episode.frames[0]["action"], np.ndarray)
+
+
+def test_a_lost_head_ends_the_recording_in_one_line_saying_resume(tmp_path):
+    """The whole cluster goes (its head node killed mid-run): one line naming the cluster and `--resume`, a non-zero
+    exit, and the episodes finished before kept for the resume."""
+    from ray.cluster_utils import Cluster
+
+    for key, value in LOOPBACK_ENV.items():
+        os.environ[key] = value
+    doomed = Cluster(initialize_head=True, head_node_args={"node_ip_address": "127.0.0.1", "num_cpus": 2})
+    out, address = tmp_path / "lpu", doomed.address
+    proc = _start(_record_command(out, address, "--commit-interval", "0"))
+    deadline = time.monotonic() + 240
+    try:
+        while proc.poll() is None and len(_seeds(out)) < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert proc.poll() is None, proc.communicate()[1][-3000:]
+        doomed.remove_node(doomed.head_node, allow_graceful=False)
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        doomed.shutdown()
+    lines = [line for line in stderr.splitlines() if line.startswith("kitbench record: error:")]
+    assert proc.returncode == 2 and len(lines) == 1, stderr[-3000:]
+    assert f"the Ray cluster at {address} was lost" in lines[0] and "continue with --resume" in lines[0]
+    assert "Traceback" not in stderr
+    kept = _seeds(out)
+    assert kept and kept == list(range(len(kept)))

@@ -32,7 +32,7 @@ def checkpoint(tmp_path_factory):
     """A few training steps of a small ACT on two expert demonstrations in end-effector deltas."""
     base = tmp_path_factory.mktemp("policy")
     data = base / "data"
-    record(RecordConfig(TASK, 2, data, control_mode="pd_ee_delta_pose", mcap=False), progress=False)
+    record(RecordConfig.of(TASK, 2, data, control_mode="pd_ee_delta_pose", mcap=False), progress=False)
     inputs = ["observation.state", "observation.environment_state"]
     lerobot_train(small_config(data, base, inputs, steps=4), data, base / "train", base)
     return base / "train"
@@ -40,7 +40,7 @@ def checkpoint(tmp_path_factory):
 
 def test_the_card_describes_the_dataset_and_its_command_makes_it_again(tmp_path):
     out = tmp_path / "lpu"
-    config = RecordConfig(TASK, 2, out, seed=4, control_mode="pd_joint_pos", settle_steps=3, action_noise=0.05)
+    config = RecordConfig.of(TASK, 2, out, seed=4, control_mode="pd_joint_pos", settle_steps=3, action_noise=0.05)
     record(config, progress=False)
     text = (out / "README.md").read_text()
     header = yaml.safe_load(text.split("---")[1])
@@ -62,7 +62,9 @@ def test_the_card_describes_the_dataset_and_its_command_makes_it_again(tmp_path)
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     # a resumed recording's card counts what is there now
     record(
-        RecordConfig(TASK, 3, out, seed=4, control_mode="pd_joint_pos", settle_steps=3, action_noise=0.05, resume=True),
+        RecordConfig.of(
+            TASK, 3, out, seed=4, control_mode="pd_joint_pos", settle_steps=3, action_noise=0.05, resume=True
+        ),
         progress=False,
     )
     assert "- Episodes: 3 (" in (out / "README.md").read_text()
@@ -73,7 +75,9 @@ def test_a_trained_policy_records_its_rollouts(checkpoint, tmp_path):
 
     out = tmp_path / "rollouts"
     spec = f"lerobot:{checkpoint}"
-    summary = record(RecordConfig(TASK, 2, out, seed=10, control_mode="pd_ee_delta_pose", policy=spec), progress=False)
+    summary = record(
+        RecordConfig.of(TASK, 2, out, seed=10, control_mode="pd_ee_delta_pose", policy=spec), progress=False
+    )
     assert summary.stored == 2 and _settings(out)["policy"] == spec
     columns = _columns(out)
     np.testing.assert_array_equal(columns["action"], columns["executed_action"])
@@ -92,7 +96,7 @@ def test_a_trained_policy_records_its_rollouts(checkpoint, tmp_path):
 
 def test_a_trained_policy_in_another_control_mode_is_refused_naming_the_flag(checkpoint, tmp_path):
     out = tmp_path / "never"
-    config = RecordConfig(TASK, 1, out, control_mode="pd_joint_delta_pos", policy=f"lerobot:{checkpoint}")
+    config = RecordConfig.of(TASK, 1, out, control_mode="pd_joint_delta_pos", policy=f"lerobot:{checkpoint}")
     with pytest.raises(KitbenchError) as error:
         record(config, progress=False)
     assert str(error.value) == (
@@ -107,7 +111,7 @@ def test_expert_labels_are_what_the_expert_commands_at_the_states_the_policy_rea
     spec = "random" if policy == "random" else f"lerobot:{checkpoint}"
     out = tmp_path / "dagger"
     record(
-        RecordConfig(TASK, 2, out, seed=20, control_mode="pd_ee_delta_pose", policy=spec, label="expert"),
+        RecordConfig.of(TASK, 2, out, seed=20, control_mode="pd_ee_delta_pose", policy=spec, label="expert"),
         progress=False,
     )
     assert _settings(out)["label"] == "expert" and "--label expert" in (out / "README.md").read_text()
@@ -137,20 +141,21 @@ def test_expert_labels_are_what_the_expert_commands_at_the_states_the_policy_rea
 def test_bad_policy_and_label_settings_write_nothing(tmp_path, kwargs, needle):
     out = tmp_path / "never"
     with pytest.raises(KitbenchError) as error:
-        record(RecordConfig(TASK, 1, out, **kwargs), progress=False)
+        record(RecordConfig.of(TASK, 1, out, **kwargs), progress=False)
     assert needle in str(error.value) and "\n" not in str(error.value)
     assert not out.exists()
 
 
 @pytest.mark.parametrize("policy", ["expert", "checkpoint"])
 def test_eval_saves_the_scored_episodes_as_a_dataset(checkpoint, tmp_path, policy):
-    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
     from kitbench.evaluation.suite import adhoc_suite
 
     spec = "expert" if policy == "expert" else f"lerobot:{checkpoint}"
     suite = adhoc_suite(TASK, 3, 500, control_mode="pd_ee_delta_pose", settle_steps=2)
     data = tmp_path / "scored"
-    report = run_eval(EvalConfig(suite, spec, tmp_path / "report", save_dataset=data), progress=False)
+    report = run_eval(EvalConfig.of(suite, spec, tmp_path / "report", save_dataset=data), progress=False)
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     ds = LeRobotDataset("kitbench/test", root=data)
@@ -181,13 +186,14 @@ def test_eval_saves_the_scored_episodes_as_a_dataset(checkpoint, tmp_path, polic
     ],
 )
 def test_save_dataset_refusals_write_nothing(tmp_path, kwargs, needle):
-    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
     from kitbench.evaluation.suite import adhoc_suite
 
     data = tmp_path / "scored"
     if kwargs.pop("existing", False):
         data.mkdir()
-    config = EvalConfig(adhoc_suite(TASK, 2, 0), "zero", tmp_path / "report", save_dataset=data, **kwargs)
+    config = EvalConfig.of(adhoc_suite(TASK, 2, 0), "zero", tmp_path / "report", save_dataset=data, **kwargs)
     with pytest.raises(KitbenchError) as error:
         run_eval(config, progress=False)
     assert needle in str(error.value)

@@ -38,7 +38,7 @@ def _columns(root: Path) -> dict[str, np.ndarray]:
 def state_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("rec") / "lpu_state"
     summary = record(
-        RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_delta_pos"),
+        RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_delta_pos"),
         progress=False,
     )
     return out, summary
@@ -68,7 +68,7 @@ def test_state_dataset_round_trips_through_lerobot(state_dataset):
 
 def test_assembling_kits_metadata_names_kit_and_shape_beside_the_dataset_episode(tmp_path, capfd):
     out = tmp_path / "ak"
-    record(RecordConfig(task="AssemblingKits-v1", episodes=2, out=out, seed=0, commit_interval=0), progress=False)
+    record(RecordConfig.of(task="AssemblingKits-v1", episodes=2, out=out, seed=0, commit_interval=0), progress=False)
     printed = capfd.readouterr()
     assert "Map" not in printed.err + printed.out  # lerobot's per-episode table bars stay off after the first
     meta = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
@@ -164,7 +164,7 @@ def test_mcap_and_dataset_read_side_by_side(state_dataset):
 
 def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan, capfd):
     out = tmp_path / "lpu_rgb"
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, obs_mode="rgb", mcap=True), progress=False)
+    record(RecordConfig.of(task="LiftPegUpright-v1", episodes=2, out=out, obs_mode="rgb", mcap=True), progress=False)
     printed = capfd.readouterr()
     assert "libx264" not in printed.err + printed.out  # the encoder's per-file statistics stay quiet
     ds = _load(out)
@@ -182,9 +182,9 @@ def test_rgb_dataset_has_decodable_video(tmp_path, needs_vulkan, capfd):
 
 def test_two_workers_give_the_same_dataset_as_one(tmp_path):
     one, two = tmp_path / "w1", tmp_path / "w2"
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=4, out=one, policy="random", mcap=False), progress=False)
+    record(RecordConfig.of(task="LiftPegUpright-v1", episodes=4, out=one, policy="random", mcap=False), progress=False)
     record(
-        RecordConfig(task="LiftPegUpright-v1", episodes=4, out=two, policy="random", mcap=False, workers=2),
+        RecordConfig.of(task="LiftPegUpright-v1", episodes=4, out=two, policy="random", mcap=False, workers=2),
         progress=False,
     )
     a, b = _columns(one), _columns(two)
@@ -196,7 +196,7 @@ def test_two_workers_give_the_same_dataset_as_one(tmp_path):
 def test_only_success_counts_but_does_not_store_failures(tmp_path):
     out = tmp_path / "only"
     summary = record(
-        RecordConfig(task="LiftPegUpright-v1", episodes=2, out=out, only_success=True, mcap=True), progress=False
+        RecordConfig.of(task="LiftPegUpright-v1", episodes=2, out=out, only_success=True, mcap=True), progress=False
     )
     assert summary.stored == 2 and summary.attempted == summary.successes + summary.failures_dropped
     assert len(list((out / "mcap").glob("*.mcap"))) == 2
@@ -207,7 +207,7 @@ def test_existing_output_is_refused_and_left_alone(state_dataset):
     out, _ = state_dataset
     before = sorted(p.name for p in out.rglob("*"))
     with pytest.raises(ValueError, match="exists; pass --resume to continue it or --overwrite to replace it"):
-        record(RecordConfig(task="LiftPegUpright-v1", episodes=3, out=out), progress=False)
+        record(RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out), progress=False)
     assert sorted(p.name for p in out.rglob("*")) == before
 
 
@@ -215,7 +215,7 @@ def _as_recorded_by_an_older_version(dataset: Path, out: Path) -> Path:
     """A copy of `dataset` whose recording settings say kitbench 0.0.1 made it."""
     import shutil
 
-    from kitbench.recording.dataset import RECORDING_FILE
+    from kitbench.metadata import RECORDING_FILE
 
     shutil.copytree(dataset, out)
     saved = json.loads((out / RECORDING_FILE).read_text())
@@ -228,7 +228,7 @@ def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_datas
     """Episodes replay from their seed only under the same physics and assets, so a dataset never mixes versions."""
     out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     before = sorted(p.name for p in out.rglob("*"))
-    config = RecordConfig(
+    config = RecordConfig.of(
         task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_delta_pos", resume=True
     )
     with pytest.raises(ValueError, match=rf"kitbench_version: recorded '0.0.1', asked '{kitbench.__version__}'"):
@@ -238,12 +238,13 @@ def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_datas
 
 def test_eval_replays_the_recorded_episodes(state_dataset, tmp_path):
     """`kitbench eval --policy replay:<dataset>` on the recorded seeds scores what was recorded."""
-    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
     from kitbench.evaluation.suite import adhoc_suite
 
     out, _ = state_dataset
     report = run_eval(
-        EvalConfig(suite=adhoc_suite("LiftPegUpright-v1", 3, seed=0), policy=f"replay:{out}", out=tmp_path / "eval"),
+        EvalConfig.of(suite=adhoc_suite("LiftPegUpright-v1", 3, seed=0), policy=f"replay:{out}", out=tmp_path / "eval"),
         progress=False,
     )
     episodes = [json.loads(line) for line in (out / "meta" / "kitbench_episodes.jsonl").read_text().splitlines()]
@@ -253,10 +254,11 @@ def test_eval_replays_the_recorded_episodes(state_dataset, tmp_path):
 
 
 def test_eval_refuses_to_replay_a_recording_on_another_task(state_dataset, tmp_path):
-    from kitbench.evaluation.runner import EvalConfig, run_eval
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
     from kitbench.evaluation.suite import adhoc_suite
 
-    config = EvalConfig(
+    config = EvalConfig.of(
         suite=adhoc_suite("AssemblingKits-v1", 2, seed=0), policy=f"replay:{state_dataset[0]}", out=tmp_path / "eval"
     )
     with pytest.raises(
@@ -296,13 +298,13 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
 
 
 def test_reward_mode_chooses_the_stored_reward_and_is_recorded(tmp_path):
-    from kitbench.recording.dataset import RECORDING_FILE
+    from kitbench.metadata import RECORDING_FILE
 
     rewards = {}
     for mode in ("sparse", "dense"):
         out = tmp_path / mode
         record(
-            RecordConfig(task="LiftPegUpright-v1", episodes=1, out=out, mcap=False, reward_mode=mode), progress=False
+            RecordConfig.of(task="LiftPegUpright-v1", episodes=1, out=out, mcap=False, reward_mode=mode), progress=False
         )
         assert json.loads((out / RECORDING_FILE).read_text())["reward_mode"] == mode
         rewards[mode] = _columns(out)["next.reward"].ravel()
@@ -316,7 +318,7 @@ def test_reward_mode_chooses_the_stored_reward_and_is_recorded(tmp_path):
     [
         ({"task": "StackCube-v1"}, "unknown task 'StackCube-v1'; valid choices: AssemblingKits-v1, LiftPegUpright-v1"),
         ({"control_mode": "pd_joint_vel"}, "unknown control_mode 'pd_joint_vel'; valid choices"),
-        ({"obs_mode": "none"}, "unknown obs_mode 'none' for recording; valid choices: state, rgb, rgbd, depth, "),
+        ({"obs_mode": "none"}, "unknown obs_mode 'none'; valid choices: state, rgb, rgbd, depth, "),
         ({"policy": "oracle"}, "unknown policy 'oracle'; valid choices: expert, random, zero"),
         ({"episodes": 0}, "episodes must be a positive integer, got 0"),
         ({"seed": -1}, "seed must be a non-negative integer, got -1"),
@@ -334,7 +336,7 @@ def test_bad_input_writes_nothing(tmp_path, kwargs, needle):
     out = tmp_path / "never"
     config = {"task": "LiftPegUpright-v1", "episodes": 2, "out": out, **kwargs}
     with pytest.raises(ValueError) as err:
-        record(RecordConfig(**config), progress=False)
+        record(RecordConfig.of(**config), progress=False)
     assert needle in str(err.value)
     assert not out.exists() and list(tmp_path.iterdir()) == []
 

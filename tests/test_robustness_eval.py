@@ -14,8 +14,9 @@ import pytest
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.compare import compare_reports
+from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.episode import evaluate_episode
-from kitbench.evaluation.runner import EvalConfig, run_eval
+from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import Suite, load_suite
 from kitbench.policies.expert import ExpertPolicy
 
@@ -124,7 +125,7 @@ def robustness_report(tmp_path_factory):
         perturbations=(("action_delay", (1,)), ("object_mass", (100,))),
     )
     out = tmp_path_factory.mktemp("robust")
-    report = run_eval(EvalConfig(suite, "expert", out), progress=False)
+    report = run_eval(EvalConfig.of(suite, "expert", out), progress=False)
     return out, report
 
 

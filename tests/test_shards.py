@@ -21,13 +21,15 @@ EPISODES = 5
 @pytest.fixture(scope="module")
 def one_writer(tmp_path_factory):
     out = tmp_path_factory.mktemp("one") / "lpu"
-    record(RecordConfig(task=TASK, episodes=EPISODES, out=out), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=EPISODES, out=out), progress=False)
     return out
 
 
 def test_shards_on_a_pool_merge_into_the_one_writer_dataset(one_writer, tmp_path):
     out = tmp_path / "lpu"
-    summary = record(RecordConfig(task=TASK, episodes=EPISODES, out=out, workers=2, shard_episodes=2), progress=False)
+    summary = record(
+        RecordConfig.of(task=TASK, episodes=EPISODES, out=out, workers=2, shard_episodes=2), progress=False
+    )
     assert (summary.stored, summary.attempted, summary.frames) == (EPISODES, EPISODES, len(_frames(one_writer)))
     _assert_same_recording(one_writer, out)
     assert not journal_root(out).exists()  # the shards are merged and gone
@@ -35,8 +37,8 @@ def test_shards_on_a_pool_merge_into_the_one_writer_dataset(one_writer, tmp_path
 
 def test_a_sharded_recording_resumes_and_extends(one_writer, tmp_path):
     out = tmp_path / "lpu"
-    record(RecordConfig(task=TASK, episodes=2, out=out, shard_episodes=2), progress=False)
-    record(RecordConfig(task=TASK, episodes=EPISODES, out=out, shard_episodes=2, resume=True), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=2, out=out, shard_episodes=2), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=EPISODES, out=out, shard_episodes=2, resume=True), progress=False)
     _assert_same_recording(one_writer, out)
 
 
@@ -45,7 +47,7 @@ def test_a_sharded_journal_is_not_resumed_without_shards(tmp_path):
     (journal_root(out) / "shards").mkdir(parents=True)
     (journal_root(out) / "recording.json").write_text("{}")
     with pytest.raises(KitbenchError, match=r"is an unfinished sharded recording; resume it with --shard-episodes"):
-        record(RecordConfig(task=TASK, episodes=2, out=out, resume=True), progress=False)
+        record(RecordConfig.of(task=TASK, episodes=2, out=out, resume=True), progress=False)
 
 
 @pytest.mark.parametrize(
@@ -57,7 +59,7 @@ def test_a_sharded_journal_is_not_resumed_without_shards(tmp_path):
 )
 def test_bad_shard_settings_are_refused_before_anything_is_written(tmp_path, settings, message):
     with pytest.raises(KitbenchError) as err:
-        record(RecordConfig(task=TASK, episodes=2, out=tmp_path / "lpu", **settings), progress=False)
+        record(RecordConfig.of(task=TASK, episodes=2, out=tmp_path / "lpu", **settings), progress=False)
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
     assert list(tmp_path.iterdir()) == []
 

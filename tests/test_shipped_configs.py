@@ -41,10 +41,10 @@ def test_config_parses_with_lerobot_and_matches_its_recipe(path):
     assert cfg.policy.push_to_hub is False and cfg.wandb.enable is False
     recipe = RECIPES.get(cfg.dataset.root)
     assert recipe is not None, f"{path.name}: no recipe in datasets/ writes {cfg.dataset.root}"
-    assert cfg.env.task == recipe.task and cfg.env.control_mode == recipe.control_mode
-    assert cfg.env.robot == recipe.robot  # None: the task's default robot, in both
+    assert cfg.env.task == recipe.task and cfg.env.control_mode == recipe.env.control_mode
+    assert cfg.env.robot == recipe.env.robot  # None: the task's default robot, in both
     assert cfg.dataset.repo_id == recipe.dataset_repo_id
-    assert (cfg.env.obs_type == "pixels_state") == (recipe.obs_mode != "state")
+    assert (cfg.env.obs_type == "pixels_state") == (recipe.env.obs_mode != "state")
 
 
 LENGTH_SEEDS = 10  # episodes per recipe whose lengths the chunk check reads
@@ -112,12 +112,12 @@ def test_config_fits_the_data_its_recipe_writes(path):
     recipe = RECIPES[cfg.dataset.root]
     shortest, still = _shortest_demo(
         recipe.task,
-        recipe.control_mode,
-        recipe.settle_steps,
-        recipe.action_noise,
-        recipe.noise_phases,
-        recipe.seed,
-        recipe.robot,
+        recipe.env.control_mode,
+        recipe.demo.settle_steps,
+        recipe.demo.action_noise,
+        recipe.demo.noise_phases,
+        recipe.demo.seed,
+        recipe.env.robot,
     )
     policy = cfg.policy
     span = policy.chunk_size if policy.type == "act" else policy.horizon
@@ -129,11 +129,13 @@ def test_config_fits_the_data_its_recipe_writes(path):
         if entries and mode is not None:
             assert mode.value == "IDENTITY", f"{path.name}: {key} {entries} are held still, normalised {mode.value}"
 
-    state_env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode, robot_uids=recipe.robot)
+    state_env = make_env(
+        recipe.task, obs_mode="state", control_mode=recipe.env.control_mode, robot_uids=recipe.env.robot
+    )
     try:
         recorded = dataset_features(state_env)
-        if recipe.obs_mode != "state":
-            recorded.update(observation_features(state_env, recipe.obs_mode))
+        if recipe.env.obs_mode != "state":
+            recorded.update(observation_features(state_env, recipe.env.obs_mode))
     finally:
         state_env.close()
     for key, name in cfg.env.features_map.items():
@@ -165,9 +167,9 @@ def test_image_configs_read_the_cameras_and_joints_not_the_object_pose(path):
     raw = json.loads(path.read_text())
     inputs = raw["policy"]["input_features"]
     recipe = RECIPES[raw["dataset"]["root"]]
-    env = make_env(recipe.task, obs_mode="state", control_mode=recipe.control_mode, robot_uids=recipe.robot)
+    env = make_env(recipe.task, obs_mode="state", control_mode=recipe.env.control_mode, robot_uids=recipe.env.robot)
     try:
-        recorded = observation_features(env, recipe.obs_mode)
+        recorded = observation_features(env, recipe.env.obs_mode)
     finally:
         env.close()
     cameras = {name for name in recorded if name.startswith(IMAGES)}

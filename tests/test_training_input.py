@@ -4,7 +4,6 @@ bit from memory, its frame cache is built once per dataset state, and rgb stored
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import pickle
@@ -47,7 +46,7 @@ def recordings(tmp_path_factory):
         "images": {"task": LPU, "obs_mode": "rgb", "episodes": 2, "rgb_storage": "images"},
         "textures": {"task": "AssemblingKits-v1", "obs_mode": "rgb+depth+segmentation", "episodes": 1},
     }.items():
-        config = RecordConfig(out=base / name, control_mode="pd_joint_pos", mcap=False, settle_steps=3, **settings)
+        config = RecordConfig.of(out=base / name, control_mode="pd_joint_pos", mcap=False, settle_steps=3, **settings)
         record(config, progress=False)
         made[name] = config
     return made
@@ -168,7 +167,7 @@ def test_the_frame_cache_is_built_once_per_dataset_state_and_replaced_when_the_d
     monkeypatch.setenv("KITBENCH_FRAME_CACHE", str(frame_cache))
 
     # the recording grows: the cache of its earlier state is replaced, not kept beside the new one
-    config = dataclasses.replace(recordings["video"], out=root, episodes=3, resume=True)
+    config = recordings["video"].replace(out=root, episodes=3, resume=True)
     record(config, progress=False)
     stock, grown = _datasets(root, delta_timestamps=ACT_CHUNK, return_uint8=True)
     _assert_same_samples(stock, grown, count=20)
@@ -287,9 +286,9 @@ def test_a_bad_rgb_storage_is_one_line_and_writes_nothing(tmp_path, monkeypatch,
 def test_every_camera_recipe_says_how_it_stores_rgb():
     for path in sorted((ROOT / "datasets").glob("*.toml")):
         recipe = load_recipe(path)
-        if recipe.obs_mode != "state":
+        if recipe.env.obs_mode != "state":
             assert "rgb_storage" in path.read_text(), f"{path.name} does not say how it stores rgb"
-            assert recipe.rgb_storage in ("video", "images")
+            assert recipe.output.rgb_storage in ("video", "images")
 
 
 def test_the_bench_refuses_unknown_configs_in_one_line():

@@ -15,7 +15,7 @@ def test_view_writes_a_rerun_recording_and_refuses_bad_input(tmp_path, capsys, m
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     dataset = tmp_path / "lpu"
-    record(RecordConfig(task="LiftPegUpright-v1", episodes=2, out=dataset, mcap=False), progress=False)
+    record(RecordConfig.of(task="LiftPegUpright-v1", episodes=2, out=dataset, mcap=False), progress=False)
     assert main(["view", str(dataset), "--episode", "1", "--save", str(tmp_path / "view")]) == 0
     (rrd,) = (tmp_path / "view").glob("*.rrd")
     assert rrd.name.endswith("_episode_1.rrd") and rrd.stat().st_size > 1000

@@ -5,35 +5,37 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from kitbench.config.checks import one_of, positive_int
+from kitbench.config.declare import setting, validate
 from kitbench.engine.executor import Executor
-from kitbench.errors import KitbenchError, check_choice
+from kitbench.errors import KitbenchError
 
 EXECUTORS = ("local", "ray")
 DEFAULT_RAY_ADDRESS = "auto"
 
 
-def _is_count(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+def _address(name: str, value: object) -> None:
+    if not isinstance(value, str) or not value:
+        raise KitbenchError(f"{name} must be auto, local or host:port, got {value!r}")
 
 
-@dataclass(frozen=True)
+@dataclass
 class ExecutorConfig:
     """Where episodes run. `local`: in this process with 1 worker, else a pool of `workers` spawned processes.
     `ray`: `workers` Ray actors on the cluster at `ray_address` (`auto`: the running cluster this machine knows
     of, else a new local one; `local`: always a new local one; or the head's `host:port`)."""
 
-    executor: str = "local"
-    workers: int = 1
-    ray_address: str = DEFAULT_RAY_ADDRESS
+    # Where episodes run: local (this process, or --workers processes) or ray (actors on a Ray cluster).
+    executor: str = setting("local", check=one_of(EXECUTORS))
+    # Simulator workers (processes or Ray actors); the results do not depend on them.
+    workers: int = setting(1, check=positive_int)
+    # With executor ray: auto (the running cluster, else a local one), local, or a head's host:port.
+    ray_address: str = setting(DEFAULT_RAY_ADDRESS, check=_address)
 
     def validate(self) -> None:
         """Every check that can fail before anything is written: the names, Ray being installed, and an explicit
         `ray_address` answering."""
-        check_choice("executor", self.executor, EXECUTORS)
-        if not _is_count(self.workers):
-            raise KitbenchError(f"workers must be a positive integer, got {self.workers!r}")
-        if not isinstance(self.ray_address, str) or not self.ray_address:
-            raise KitbenchError(f"ray_address must be auto, local or host:port, got {self.ray_address!r}")
+        validate(self)
         if self.executor == "ray":
             from kitbench.engine.ray_executor import check_ray
 

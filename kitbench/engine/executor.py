@@ -6,6 +6,11 @@ from abc import ABC, abstractmethod
 from typing import Any
 
 from kitbench.engine.work import Work
+from kitbench.errors import KitbenchError
+
+
+class ClusterLost(KitbenchError):
+    """The cluster the workers ran on is gone (its head no longer answers): nothing more can run there."""
 
 
 class Executor(ABC):

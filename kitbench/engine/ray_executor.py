@@ -19,7 +19,7 @@ import socket
 from pathlib import Path
 from typing import Any
 
-from kitbench.engine.executor import Executor
+from kitbench.engine.executor import ClusterLost, Executor
 from kitbench.engine.work import Work, single_threaded_torch
 from kitbench.errors import KitbenchError
 
@@ -132,12 +132,15 @@ class RayExecutor(Executor):
         self._actors: list[Any] = []
         self._outstanding: list[list[Any]] = []
         self._connected = False
+        self._cluster: str | None = None  # the head's address, once connected
+        self._lost = False
 
     def start(self, work: Work) -> None:
         check_ray(self.address)
         self._connected = _connect(self.address, self.workers)
         import ray
 
+        self._cluster = ray.get_runtime_context().gcs_address
         cpus = ray.cluster_resources().get("CPU", 0)
         if cpus < self.workers:
             self.close()
@@ -165,15 +168,28 @@ class RayExecutor(Executor):
         self._outstanding[index].append(ref)
         return ref
 
+    def _head_lost(self) -> bool:
+        if self._cluster is None:
+            return False
+        try:
+            host, port = _parse(self._cluster)
+        except KitbenchError:
+            return False
+        return not _answers(host, port)
+
     def result(self, handle: Any) -> Any:
         import ray
-        from ray.exceptions import RayActorError, RayTaskError
+        from ray.exceptions import RayError, RayTaskError
 
         try:
             return ray.get(handle)
         except RayTaskError as exc:
             raise exc.as_instanceof_cause() from None  # the job's own exception, as a local run raises it
-        except RayActorError as exc:
+        except RayError as exc:
+            # an actor that died with its node is Ray's to restart; with the head gone there is nothing left to run on
+            if self._head_lost():
+                self._lost = True
+                raise ClusterLost(f"the Ray cluster at {self._cluster} was lost: its head no longer answers") from None
             raise RuntimeError(
                 f"a Ray worker died more than {MAX_RESTARTS} times running this job; giving up ({exc})"
             ) from exc
@@ -181,7 +197,7 @@ class RayExecutor(Executor):
     def close(self) -> None:
         import ray
 
-        for actor in self._actors:
+        for actor in [] if self._lost else self._actors:  # a lost cluster has no actors left to stop
             ray.kill(actor, no_restart=True)
         self._actors, self._outstanding = [], []
         if self._connected:

@@ -4,14 +4,13 @@ Defined once, from the env itself, and used by the recorder (a dataset's schema 
 lerobot policies (does the checkpoint fit the env? what does it read?) and the LeRobot env plugin
 (`--env.type=kitbench`). Shapes follow LeRobot's dataset convention: images (height, width, channels).
 
-Per camera, by the obs mode's textures (`kitbench.envs.modes`), with LeRobot's own naming of depth cameras
-(`<camera>_depth`, as its robots' depth streams):
+Per camera, each of the obs mode's textures (`kitbench.envs.modalities`, with LeRobot's own naming of depth
+cameras, `<camera>_depth`, as its robots' depth streams):
 - `observation.images.<camera>`: rgb, video (H, W, 3) uint8;
 - `observation.images.<camera>_depth`: depth, a LeRobot depth video (H, W, 1) float32 metres along the viewing
   axis, 0 where the pixel sees nothing; stored quantised (`DEPTH_ENCODING`);
 - `observation.images.<camera>_segmentation`: segmentation, a lossless 16-bit PNG image (H, W, 1) uint16 of the
-  env's stable ids (`segmentation_id_map`, kept in the feature's `info`). Not a video: a lossy codec would blend
-  ids at every edge.
+  env's stable ids (`segmentation_id_map`, kept in the feature's `info`).
 obs_mode `pointcloud`: `observation.pointcloud.xyz` (N, 3) float32 metres, world frame, `.rgb` (N, 3) uint8 and
 `.segmentation` (N, 1) uint16, N points sampled per frame (`kitbench.envs.pointcloud`).
 """
@@ -20,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitbench.envs.modes import POINTCLOUD, TEXTURES, camera_textures
+from kitbench.envs.modalities import TEXTURES, texture_of
+from kitbench.envs.modes import POINTCLOUD, camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.envs.tabletop import POSE_NAMES
 
@@ -37,10 +37,8 @@ __all__ = [
     "vector",
 ]
 
-# How a camera's depth and segmentation features are named after it (`observation.images.<camera><suffix>`), and
-# the prefix of the point cloud's features: `modality` reads them back.
-DEPTH_SUFFIX = "_depth"
-SEGMENTATION_SUFFIX = "_segmentation"
+# The prefix of the point cloud's features (a camera texture's name is `observation.images.<camera><suffix>`,
+# `kitbench.envs.modalities`).
 POINTCLOUD_PREFIX = "observation.pointcloud."
 # LeRobot's depth quantiser (`DepthEncoderConfig`): 12-bit codes in a lossless HEVC stream. Linear over 0-8.19 m,
 # each code is 2 mm, so a stored depth is within 1 mm of the rendered one (LeRobot's default, logarithmic over
@@ -66,7 +64,6 @@ EE_ACTION_NAMES = {
 STATE = "observation.state"
 ENVIRONMENT_STATE = "observation.environment_state"
 IMAGES = "observation.images."
-HWC = ["height", "width", "channels"]
 
 
 def vector(names, dtype: str = "float32") -> dict:
@@ -103,24 +100,9 @@ def observation_features(env, obs_mode: str | None = None, points: int = DEFAULT
         }
         return features
     for spec in u.camera_specs():
-        key = IMAGES + spec.name
-        if "rgb" in textures:
-            features[key] = {"dtype": "video", "shape": (spec.height, spec.width, 3), "names": HWC}
-        if "depth" in textures:
-            features[key + DEPTH_SUFFIX] = {
-                "dtype": "video",
-                "shape": (spec.height, spec.width, 1),
-                "names": HWC,
-                # LeRobot adds depth_unit "m" (float frames) and the quantiser's settings when it encodes
-                "info": {"is_depth_map": True, "depth": "along the viewing axis (z-depth); 0: the pixel sees nothing"},
-            }
-        if "segmentation" in textures:
-            features[key + SEGMENTATION_SUFFIX] = {
-                "dtype": "image",
-                "shape": (spec.height, spec.width, 1),
-                "names": HWC,
-                "info": ids,
-            }
+        for texture in TEXTURES.values():
+            if texture.name in textures:
+                features[IMAGES + spec.name + texture.suffix] = texture.feature(spec.height, spec.width, ids)
     return features
 
 
@@ -139,13 +121,9 @@ def observation_frame(env, obs, sampler: PointSampler | None = None) -> dict[str
             frame[POINTCLOUD_PREFIX + name] = value
         return frame
     for camera, data in obs.get("sensor_data", {}).items():
-        key = IMAGES + camera
-        if "rgb" in data:
-            frame[key] = data["rgb"]
-        if "depth" in data:
-            frame[key + DEPTH_SUFFIX] = data["depth"]
-        if "segmentation" in data:
-            frame[key + SEGMENTATION_SUFFIX] = data["segmentation"]
+        for texture in TEXTURES.values():
+            if texture.name in data:
+                frame[IMAGES + camera + texture.suffix] = data[texture.name]
     return frame
 
 
@@ -153,11 +131,8 @@ def modality(name: str) -> str | None:
     """What a dataset feature holds of an obs mode: rgb, depth, segmentation or pointcloud; None for the rest."""
     if name.startswith(POINTCLOUD_PREFIX):
         return POINTCLOUD
-    if not name.startswith(IMAGES):
-        return None
-    if name.endswith(DEPTH_SUFFIX):
-        return "depth"
-    return "segmentation" if name.endswith(SEGMENTATION_SUFFIX) else "rgb"
+    texture = texture_of(name, IMAGES)
+    return None if texture is None else texture.name
 
 
 def obs_mode_for(features) -> str:
@@ -177,18 +152,13 @@ def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str,
     """A frame in the layout stock `LeRobotDataset` returns it, as numpy: images channels first, rgb as float32 in
     [0, 1], depth as float32 in `depth_unit` (LeRobot's `depth_output_unit`, "mm" by default), segmentation ids as
     float32, point cloud colours and ids as int64; what a policy trained on the dataset must be fed."""
-    scale = {"mm": 1000.0, "m": 1.0}[depth_unit]
     out = {}
     for name, value in frame.items():
-        kind = modality(name)
-        if kind is None or kind == POINTCLOUD:
+        texture = texture_of(name, IMAGES)
+        if texture is None:  # vectors and point clouds
             out[name] = value.astype(np.int64) if value.dtype.kind in "ui" else value
-        elif kind == "depth":
-            out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)) * np.float32(scale)
-        elif kind == "segmentation":
-            out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)).astype(np.float32)
         else:
-            out[name] = np.ascontiguousarray(value.transpose(2, 0, 1)).astype(np.float32) / np.float32(255)
+            out[name] = texture.loaded(value, depth_unit)
     return out
 
 

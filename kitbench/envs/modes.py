@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import itertools
 
-TEXTURES = ("rgb", "depth", "segmentation")
+from kitbench.envs import modalities
+
+TEXTURES = tuple(modalities.TEXTURES)  # "rgb", "depth", "segmentation": one class each
 # every non-empty combination of the textures, in TEXTURES' order ("rgb+depth+segmentation")
 _TEXTURE_MODES = tuple(
     "+".join(combo) for n in range(1, len(TEXTURES) + 1) for combo in itertools.combinations(TEXTURES, n)

@@ -27,6 +27,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from kitbench.config.declare import setting
 from kitbench.errors import KitbenchError, check_choice
 from kitbench.evaluation.report import REPORT_VERSION, group_table, write_json
 from kitbench.evaluation.significance import (
@@ -522,6 +523,25 @@ def _robustness_rows(a: dict, b: dict, a_path: Path, b_path: Path, add) -> None:
         if ra is not None and rb is not None:
             pairs = _paired_episodes(ra, rb)
         add("perturbation", label, True, ca, cb, lambda e: e["success"], None, pairs)
+
+
+@dataclass
+class CompareSettings:
+    # The baseline: a report.json (or its report folder).
+    a: Path = setting(positional=True, metavar="A")
+    # The candidate: a report.json (or its report folder).
+    b: Path = setting(positional=True, metavar="B")
+    # The significance level, between 0 and 1.
+    alpha: str = setting("0.05")
+    # The unpaired test: fisher or barnard (more powerful, slower); when both reports scored the same seeds the
+    # headline is McNemar's paired test.
+    test: str = setting("fisher")
+    # Also write the comparison to this JSON file.
+    json: Path | None = setting(None)
+    # Compare reports whose task, seeds or modes differ (with a warning) instead of refusing.
+    allow_different_suites: bool = setting(False)
+    # Exit 1 when B's success rate is significantly lower than A's (default: exit 0 whatever the verdict).
+    fail_if_worse: bool = setting(False)
 
 
 def compare_reports(

@@ -4,9 +4,9 @@ The task ends an episode at its first success; with `settle_steps` it runs on th
 time limit), and the episode has two outcomes, as ManiSkill reports them: `success_once` (successful at any step)
 and `success_at_end` (successful at the last step). `success` is the suite's headline of the two.
 
-Nothing is copied per step beyond a grasp check (and, for a video, the rendered frame), so scoring runs at the
-speed of the simulator and the policy. A batch of episodes (`evaluate_batch`) steps several envs in lockstep with
-one policy call per step for all of them, as `lerobot-eval` does.
+Scoring is hooks on the one rollout loop (`kitbench.rollout`): `EpisodeScore` (nothing is copied per step beyond a
+grasp check) and, for a video, `VideoFrames`. A batch of episodes (`evaluate_batch`) steps several envs in lockstep
+with one policy call per step for all of them, as `lerobot-eval` does.
 """
 
 from __future__ import annotations
@@ -16,7 +16,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from kitbench.envs.grasp import GraspHistory
+from kitbench.envs.interface import as_kitbench
 from kitbench.evaluation.outcomes import criteria, failure_category, watch_grasp
+from kitbench.rollout import Episode, Hook, OneEpisode, SettleAfterSuccess, Step, run
 
 
 @dataclass
@@ -47,82 +49,79 @@ def _scalars(info: dict) -> dict:
     return out
 
 
-class EpisodeScore:
-    """One episode's score as it runs: fed every step's outcome, it says when the episode is over (the task's
-    end, `settle_steps` after the first success, or the time limit) and what it scored. `evaluate_episode` runs one
-    env with it; `evaluate_batch` runs several in lockstep, one score each."""
+class EpisodeScore(Hook):
+    """One episode's score, kept as it runs (a hook of the rollout loop): its return, whether and when it
+    succeeded, the grasp history the failure categories read, and at the end what it scored."""
 
-    def __init__(self, env, seed: int, settle_steps: int = 0):
-        self.env, self.seed, self.settle_steps = env, seed, settle_steps
+    def __init__(self, settle_steps: int = 0):
+        self.settle_steps = settle_steps
         self.history = GraspHistory()
-        self.total, self.steps = 0.0, 0
-        self.first: int | None = None  # the step of the first success
-        self.info: dict = {}
-        self.done = False
+        self.total = 0.0
+        self.episode: Episode | None = None
 
-    def step(self, reward, terminated: bool, truncated: bool, info: dict) -> bool:
-        """Add one step's outcome; returns whether the episode is over."""
-        self.steps += 1
-        self.total += float(reward)
-        watch_grasp(self.env, self.history)
-        if self.first is None and info["success"]:
-            self.first = self.steps
-        if self.first is not None:  # the task ends an episode at its first success; settling runs it on
-            terminated = self.steps - self.first >= self.settle_steps
-        self.info = info
-        self.done = bool(terminated or truncated)
-        return self.done
+    def on_reset(self, episode: Episode) -> None:
+        self.episode = episode
+
+    def after_step(self, episode: Episode, step: Step) -> None:
+        self.total += step.reward
+        watch_grasp(episode.env, self.history)
 
     def result(self) -> EpisodeResult:
-        env, info = self.env, self.info
+        episode = self.episode
+        assert episode is not None, "scored after the episode ran"
+        env, info = as_kitbench(episode.env), episode.info
         at_end = bool(info["success"])
-        headline = at_end if self.settle_steps > 0 else self.first is not None
+        first = None if episode.first_success is None else episode.first_success + 1  # steps until it
+        headline = at_end if self.settle_steps > 0 else first is not None
         return EpisodeResult(
-            seed=self.seed,
+            seed=episode.seed,
             success=headline,
-            length=self.steps,
-            steps_to_success=self.first,
+            length=episode.steps,
+            steps_to_success=first,
             episode_return=self.total,
             criteria=criteria(env, info),
             failure=None if headline else failure_category(env, info, self.history),
-            config=env.unwrapped.episode_config(),
+            config=env.episode_config(),
             final=_scalars(info),
             physics_error=info.get("physics_error"),
-            success_once=self.first is not None,
+            success_once=first is not None,
             success_at_end=at_end,
         )
+
+
+class VideoFrames(Hook):
+    """A rendered frame per state, the first after the reset, into `frames`."""
+
+    def __init__(self, frames: list):
+        self.frames = frames
+
+    def on_reset(self, episode: Episode) -> None:
+        self.frames.append(episode.env.render())
+
+    def after_step(self, episode: Episode, step: Step) -> None:
+        self.frames.append(episode.env.render())
+
+
+def score_hooks(settle_steps: int, frames: list | None = None) -> list[Hook]:
+    """What scoring an episode adds to the rollout loop (its score first, read with `hooks[0].result()`)."""
+    hooks: list[Hook] = [EpisodeScore(settle_steps), SettleAfterSuccess(settle_steps)]
+    if frames is not None:
+        hooks.append(VideoFrames(frames))
+    return hooks
 
 
 def evaluate_episode(env, policy, seed: int, frames: list | None = None, settle_steps: int = 0) -> EpisodeResult:
     """Run `policy` on `seed` to the end (`settle_steps` after the first success, or the time limit); if `frames` is
     a list, append a rendered frame per state to it."""
-    obs, info = env.reset(seed=seed)
-    policy.reset(env, seed, obs, info)
-    score = EpisodeScore(env, seed, settle_steps)
-    if frames is not None:
-        frames.append(env.render())
-    while True:
-        obs, reward, terminated, truncated, info = env.step(policy.act(obs))
-        if frames is not None:
-            frames.append(env.render())
-        if score.step(reward, terminated, truncated, info):
-            return score.result()
+    hooks = score_hooks(settle_steps, frames)
+    run([as_kitbench(env)], [seed], OneEpisode(policy), lambda _: hooks)
+    return hooks[0].result()  # type: ignore[attr-defined]
 
 
 def evaluate_batch(envs: list, policy, seeds: list[int], settle_steps: int = 0) -> list[EpisodeResult]:
-    """Run `policy` on `seeds`, one env each, in lockstep: one `policy.act_batch` call per control step for every
-    episode of the batch. An episode that ends is frozen (its env no longer steps, its last observation still
+    """Run `policy` (a batch policy) on `seeds`, one env each, in lockstep: one `act_batch` call per control step for
+    every episode of the batch. An episode that ends is frozen (its env no longer steps, its last observation still
     fills its row of the policy's batch, its action is dropped) until the batch ends."""
-    envs = envs[: len(seeds)]
-    resets = [env.reset(seed=seed) for env, seed in zip(envs, seeds, strict=True)]
-    obs = [o for o, _ in resets]
-    policy.reset_batch(envs, seeds, obs, [i for _, i in resets])
-    scores = [EpisodeScore(env, seed, settle_steps) for env, seed in zip(envs, seeds, strict=True)]
-    while not all(s.done for s in scores):
-        actions = policy.act_batch(obs, [not s.done for s in scores])
-        for i, (env, score) in enumerate(zip(envs, scores, strict=True)):
-            if score.done:
-                continue
-            obs[i], reward, terminated, truncated, info = env.step(actions[i])
-            score.step(reward, terminated, truncated, info)
-    return [s.result() for s in scores]
+    hooks = [score_hooks(settle_steps) for _ in seeds]
+    run([as_kitbench(e) for e in envs], seeds, policy, lambda i: hooks[i])
+    return [h[0].result() for h in hooks]  # type: ignore[attr-defined]

@@ -9,6 +9,7 @@ the physics, whatever its state says.
 from __future__ import annotations
 
 from kitbench.envs.grasp import GraspHistory
+from kitbench.envs.interface import as_kitbench
 
 # The failure category of an episode that ended because PhysX diverged; reports list it after the task's own.
 PHYSICS_ERROR = "physics_error"
@@ -16,13 +17,13 @@ PHYSICS_ERROR = "physics_error"
 
 def watch_grasp(env, history: GraspHistory) -> None:
     """Add one step to `history`: does the robot hold the task's object now?"""
-    u = env.unwrapped
-    history.update(u.robot.is_grasping(u.target_object))
+    env = as_kitbench(env)
+    history.update(env.robot.is_grasping(env.target_object))
 
 
 def criteria(env, info: dict) -> dict[str, bool]:
     """The task's success criteria at one step, by name."""
-    return {name: bool(info[name]) for name in env.unwrapped.success_criteria}
+    return {name: bool(info[name]) for name in as_kitbench(env).success_criteria}
 
 
 def failure_category(env, info: dict, history: GraspHistory) -> str | None:
@@ -30,11 +31,11 @@ def failure_category(env, info: dict, history: GraspHistory) -> str | None:
     `PHYSICS_ERROR` when the simulation failed, before the task is asked."""
     if info.get("physics_error"):
         return PHYSICS_ERROR
-    u = env.unwrapped
-    category = u.failure_category(info, history)
-    if category is not None and category not in u.failure_categories:
+    env = as_kitbench(env)
+    category = env.failure_category(info, history)
+    if category is not None and category not in env.failure_categories:
         raise RuntimeError(
-            f"{type(u).__name__}.failure_category returned {category!r}, which is not in its "
-            f"failure_categories {u.failure_categories}"
+            f"{env.task_id}'s failure_category returned {category!r}, which is not in its "
+            f"failure_categories {env.failure_categories}"
         )
     return category

@@ -118,7 +118,7 @@ def build_report(
     n = len(results)
     successes = [r for r in results if r.success]
     names = list(results[0].criteria) if results else []
-    env_class = task_entry(suite.task).env_class
+    env_class = task_entry(suite.task_id).env_class
     categories = _categories(env_class, results)
     report = {
         "report_version": REPORT_VERSION,

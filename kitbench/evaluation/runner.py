@@ -12,57 +12,37 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
-from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
+from kitbench.engine import RolloutEngine, make_executor
+from kitbench.engine.executor import ClusterLost
 from kitbench.errors import KitbenchError
+from kitbench.evaluation.config import COMMAND_LINE, EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.suite import Suite
 from kitbench.evaluation.work import Batch, EvalWork, Film, Save, Trial, make_suite_env
+from kitbench.metadata import is_recording
 
 REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
 
 
-@dataclass(frozen=True)
-class EvalConfig:
-    suite: Suite
-    policy: str
-    out: Path
-    workers: int = 1
-    videos: int = 0
-    # Where episodes run (kitbench.engine.ExecutorConfig); the numbers do not depend on it.
-    executor: str = "local"
-    ray_address: str = "auto"
-    # Replace the report in an existing non-empty `out` folder (its report.json/.md, plots and videos; nothing
-    # else in the folder is touched). Without it such a folder is refused.
-    overwrite: bool = False
-    # Suite settings the user chose explicitly; a policy's own needs may change the others (e.g. an
-    # image-based policy turns obs_mode "state" into "rgb") but must not contradict these.
-    explicit: frozenset[str] = frozenset()
-    # Episodes each worker runs in lockstep, with one policy call a step for all of them (`Batch`); 1: one at a
-    # time. Seeds and results do not depend on it (a trained network's actions to float rounding: docs/evaluation.md).
-    batch_size: int = 1
-    # Where a trained policy's network runs: auto (CUDA when torch sees it), cpu or cuda.
-    device: str = "auto"
-    # A lerobot checkpoint's config fields set for this run (`--policy-option KEY=VALUE`), recorded in the report.
-    policy_options: tuple[tuple[str, object], ...] = ()
-    # Where the scored (nominal) episodes go as a LeRobot dataset (`--save-dataset`); None: nowhere. A folder that
-    # exists is refused unless `overwrite`.
-    save_dataset: Path | None = None
+def fit_suite_to_policy(suite: Suite, policy, origins: dict[str, str]) -> Suite:
+    """Apply what a policy needs (its requirements: task / obs_mode / control_mode / robot) to the suite, or explain
+    the conflict (`origins`: where each env setting came from; the command line's are not silently changed). An
+    action means nothing in the wrong control mode, so that one is never silently changed."""
+    from kitbench.policies.base import requirements_of
 
-
-def fit_suite_to_policy(suite: Suite, policy, explicit: frozenset[str]) -> Suite:
-    """Apply what a policy needs (`policy.requirements()`: task / obs_mode / control_mode) to the suite, or explain the
-    conflict. An action means nothing in the wrong control mode, so that one is never silently changed."""
-    needs = policy.requirements() if hasattr(policy, "requirements") else {}
+    explicit = {name for name, origin in origins.items() if origin == COMMAND_LINE}
+    needs = requirements_of(policy)
     task = needs.get("task")
     if task is not None and task != suite.task:
         raise KitbenchError(
             f"policy {policy.name} was recorded on {task} but this evaluation runs {suite.task}; "
             f"evaluate it with --task {task}"
         )
-    changes = {}
+    changes: dict[str, Any] = {}
     robot = needs.get("robot")
     if robot is not None and robot != suite.robot_uid:
         # an action means a joint target of one robot: never silently another robot's
@@ -124,18 +104,13 @@ def validate(config: EvalConfig):
     from kitbench.policies.lerobot_policy import resolve_device
     from kitbench.policies.registry import make_policy
 
-    ExecutorConfig(config.executor, config.workers, config.ray_address).validate()
-    if not isinstance(config.videos, int) or config.videos < 0:
-        raise KitbenchError(f"videos must be a non-negative integer, got {config.videos!r}")
-    size = config.batch_size
-    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
-        raise KitbenchError(f"batch_size must be a positive integer, got {size!r}")
-    device = resolve_device(config.device)
-    check_out_folder(Path(config.out), config.overwrite)
-    if config.save_dataset is not None:
+    config.validate()
+    device = resolve_device(config.policy.device)
+    check_out_folder(config.out, config.output.overwrite)
+    if config.output.save_dataset is not None:
         _check_save_dataset(config)
-    policy = make_policy(config.policy, device, dict(config.policy_options))
-    suite = fit_suite_to_policy(config.suite, policy, config.explicit)
+    policy = make_policy(config.policy.policy, device, dict(config.policy.policy_options))
+    suite = fit_suite_to_policy(config.suite, policy, config.origins)
     from kitbench.doctor import require_renderer
 
     require_renderer(suite.obs_mode)
@@ -143,8 +118,8 @@ def validate(config: EvalConfig):
     try:
         obs, info = env.reset(seed=suite.seeds[0])
         policy.reset(env, suite.seeds[0], obs, info)  # policies check the env fits them here
-        timestep = env.unwrapped.control_timestep
-        fps = env.unwrapped.sim_config.control_freq
+        timestep = env.control_timestep
+        fps = env.control_freq
     finally:
         env.close()
     return suite, policy, timestep, fps, device
@@ -157,23 +132,27 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     wall_start = time.monotonic()
     suite, policy, timestep, fps, device = validate(config)
     del policy
-    out = Path(config.out)
+    out = config.out
     start = time.monotonic()
-    jobs = _jobs(suite, config.batch_size, saving=config.save_dataset is not None)
-    executor = make_executor(ExecutorConfig(config.executor, config.workers, config.ray_address), len(jobs))
+    batch_size = config.policy.batch_size
+    jobs = _jobs(suite, batch_size, saving=config.output.save_dataset is not None)
+    executor = make_executor(config.executor, len(jobs))
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
-    options = dict(config.policy_options)
-    with RolloutEngine(executor, EvalWork(suite, config.policy, device, options)) as engine:
+    options = dict(config.policy.policy_options)
+    with RolloutEngine(executor, EvalWork(suite, config.policy.policy, device, options)) as engine:
         out.mkdir(parents=True, exist_ok=True)
         for stale in (REPORT_JSON, REPORT_MD):
             (out / stale).unlink(missing_ok=True)
         for stale in (PLOTS_DIR, VIDEOS_DIR):
             shutil.rmtree(out / stale, ignore_errors=True)
-        results, perturbed, episodes = _score(engine, suite, jobs, progress)
-        if config.save_dataset is not None:
+        try:
+            results, perturbed, episodes = _score(engine, suite, jobs, progress)
+        except ClusterLost as exc:
+            raise KitbenchError(f"{exc}; no report was written: run the evaluation again") from None
+        if config.output.save_dataset is not None:
             _write_dataset(config, suite, episodes)
         scored = time.monotonic()
-        report = _write_report(suite, config.policy, results, timestep, out, perturbed, options)
+        report = _write_report(suite, config.policy.policy, results, timestep, out, perturbed, options)
         reported = time.monotonic()
         # Wall time from the call to the report, and its parts: checking the setup (loading the policy, building
         # an env: seconds for a lerobot checkpoint), scoring (worker start-up included) and writing the report.
@@ -186,13 +165,13 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             "report_seconds": reported - scored,
             "video_seconds": 0.0,
             "workers": engine.workers,
-            "executor": config.executor,
-            "batch_size": config.batch_size,
+            "executor": config.executor.executor,
+            "batch_size": batch_size,
             "device": device,
             "episodes_per_minute": 60.0 * len(results) / max(reported - wall_start, 1e-9),
         }
         _save(report, out)
-        chosen = pick_video_seeds(results, config.videos)
+        chosen = pick_video_seeds(results, config.output.videos)
         if chosen:
             try:
                 _film(engine, chosen, out, fps, report["output"]["videos"], progress)
@@ -263,12 +242,14 @@ def _score(
 
 
 def _check_save_dataset(config: EvalConfig) -> None:
-    target = Path(config.save_dataset)  # type: ignore[arg-type]  # checked by the caller
-    if config.batch_size != 1:
-        raise KitbenchError(f"--save-dataset records episodes one at a time; drop --batch-size {config.batch_size}")
-    if target.exists() and not config.overwrite:
+    target = Path(config.output.save_dataset)  # type: ignore[arg-type]  # checked by the caller
+    if config.policy.batch_size != 1:
+        raise KitbenchError(
+            f"--save-dataset records episodes one at a time; drop --batch-size {config.policy.batch_size}"
+        )
+    if target.exists() and not config.output.overwrite:
         raise KitbenchError(f"dataset folder {target} exists; pass --overwrite to replace it")
-    if target.exists() and not (target / "meta" / "kitbench_recording.json").is_file():
+    if target.exists() and not is_recording(target):
         raise KitbenchError(f"{target} is not a kitbench dataset; --overwrite replaces only those")
 
 
@@ -277,46 +258,46 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
     import shlex
 
     import kitbench
-    from kitbench.recording.dataset import DatasetWriter, remove_recording
+    from kitbench.metadata import RecordingInfo
     from kitbench.recording.features import dataset_features
+    from kitbench.recording.session import RecordingSession
 
-    target = Path(config.save_dataset)  # type: ignore[arg-type]  # only called with one
+    target = Path(config.output.save_dataset)  # type: ignore[arg-type]  # only called with one
     env = make_suite_env(suite)
     try:
         env.reset(seed=suite.seeds[0])
-        features, fps, robot = dataset_features(env), env.unwrapped.sim_config.control_freq, env.unwrapped.robot_uid
+        features, fps, robot = dataset_features(env), env.control_freq, env.robot_uid
     finally:
         env.close()
+    policy = config.policy.policy
     flags = ["--suite", suite.source] if suite.source else ["--task", suite.task, "--seed", str(suite.seeds[0])]
-    flags += ["--episodes", str(len(suite.seeds)), "--policy", config.policy, "--obs-mode", suite.obs_mode]
+    flags += ["--episodes", str(len(suite.seeds)), "--policy", policy, "--obs-mode", suite.obs_mode]
     flags += ["--control-mode", suite.control_mode, "--robot", robot, "--settle-steps", str(suite.settle_steps)]
-    for key, value in config.policy_options:
+    for key, value in config.policy.policy_options:
         flags += ["--policy-option", f"{key}={value}"]
-    repo_id = f"kitbench/{suite.task}"
-    recording = {
-        "task": suite.task,
-        "seed": suite.seeds[0],
-        "seeds": list(suite.seeds),
-        "obs_mode": suite.obs_mode,
-        "control_mode": suite.control_mode,
-        "policy": config.policy,
-        "settle_steps": suite.settle_steps,
-        "reward_mode": suite.reward_mode,
-        "robot": robot,
-        "kitbench_version": kitbench.__version__,
-        "repo_id": repo_id,
-        "fps": fps,
-        "made_by": shlex.join(["kitbench", "eval", *flags, "--save-dataset", "<folder>"]),
-    }
-    if target.exists():
-        remove_recording(target)
-    writer = DatasetWriter(target, repo_id, fps, features, robot, recording)
+    info = RecordingInfo(
+        task=suite.task_id,
+        seed=suite.seeds[0],
+        seeds=list(suite.seeds),
+        obs_mode=suite.obs_mode,
+        control_mode=suite.control_mode,
+        policy=policy,
+        settle_steps=suite.settle_steps,
+        reward_mode=suite.reward_mode,
+        robot=robot,
+        kitbench_version=kitbench.__version__,
+        repo_id=f"kitbench/{suite.task}",
+        fps=fps,
+        made_by=shlex.join(["kitbench", "eval", *flags, "--save-dataset", "<folder>"]),
+    )
+    session = RecordingSession(target, info, features, robot, commit_interval=float("inf"), durable=False)
+    session.start(overwrite=target.exists())
     try:
         for episode in episodes:
-            writer.add_episode(episode, {})
-        writer.commit()
+            session.store(episode)
+        session.commit()
     except BaseException:
-        writer.abandon()
+        session.abandon()
         raise
 
 

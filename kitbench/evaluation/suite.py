@@ -20,75 +20,52 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from kitbench.control.controllers import CONTROL_MODES
-from kitbench.envs.modes import IMAGE_OBS_MODES, REWARD_MODES
+from kitbench.config import declare
+from kitbench.config.checks import is_seed
+from kitbench.config.declare import setting
+from kitbench.config.files import read_settings
+from kitbench.engine.config import ExecutorConfig
+from kitbench.env_settings import OBS_MODES, EnvSettings
+from kitbench.envs.modes import IMAGE_OBS_MODES
 from kitbench.errors import KitbenchError
 from kitbench.perturbations import PERTURBATIONS, make_perturbation
 from kitbench.registration import TASKS, canonical_task, task_entry
-from kitbench.settings import check_seed, is_seed, read_settings
+from kitbench.rollout import SettleSettings
 
-OBS_MODES_EVALUABLE = ("state", *IMAGE_OBS_MODES)
-SUITE_KEYS = (
-    "name",
-    "task",
-    "seeds",
-    "obs_mode",
-    "control_mode",
-    "reward_mode",
-    "description",
-    "executor",
-    "workers",
-    "ray_address",
-    "settle_steps",
-    "perturbations",
-    "robot",
-)
+OBS_MODES_EVALUABLE = OBS_MODES
 SUITE_TABLE = "suite"
 DEFAULT_FIRST_SEED = 1_000_000
 
 
-@dataclass(frozen=True)
-class Suite:
-    name: str
-    task: str
-    seeds: tuple[int, ...]
-    obs_mode: str = "state"
-    control_mode: str = "pd_joint_delta_pos"
-    reward_mode: str = "dense"
-    description: str = ""
-    settle_steps: int = 0  # steps an episode runs on after its first success
-    robot: str | None = None  # the robot (`robot_uids`); None: the task's default
-    # (name, levels) pairs; each level is one run of every seed under that perturbation
-    perturbations: tuple[tuple[str, tuple[float, ...]], ...] = ()
-    source: str | None = field(default=None, compare=False)  # the file it came from
-    # Where the suite's episodes run by default (kitbench.engine.ExecutorConfig; flags override them). Not part of
-    # what the suite is: the numbers do not depend on them, so they are left out of comparisons and reports.
-    executor: str | None = field(default=None, compare=False)
-    workers: int | None = field(default=None, compare=False)
-    ray_address: str | None = field(default=None, compare=False)
+@dataclass(eq=True)
+class Suite(EnvSettings, SettleSettings):
+    """A suite: the env settings (`EnvSettings`), the seeds and everything else that decides the numbers."""
+
+    # The suite's name (default: its file's name).
+    name: str = setting("", cli=False)
+    # The seeds: a list, or { start = S, count = N }.
+    seeds: tuple[int, ...] = setting((), cli=False)
+    # What the suite is for.
+    description: str = setting("", cli=False)
+    # Robustness perturbations: name = [level, ...] (kitbench.perturbations); each level one run of every seed.
+    perturbations: tuple[tuple[str, tuple[float, ...]], ...] = setting((), cli=False)
+    # The file it came from.
+    source: str | None = field(default=None, compare=False)
+    # Where the suite's episodes run by default (its file's executor, workers and ray_address; flags override
+    # them). Not part of what the suite is: the numbers do not depend on them.
+    runs_on: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self):
-        # stored by its short name, so reports and output folders are the same whichever spelling was given
-        object.__setattr__(self, "task", canonical_task(self.task))
-        if not isinstance(self.task, str) or self.task not in TASKS:
+        super().__post_init__()
+        if not isinstance(self.task, str):
             raise KitbenchError(f"{self._where()}unknown task {self.task!r}; valid choices: {', '.join(TASKS)}")
-        for key, value, valid in (
-            ("obs_mode", self.obs_mode, OBS_MODES_EVALUABLE),
-            ("control_mode", self.control_mode, CONTROL_MODES),
-            ("reward_mode", self.reward_mode, REWARD_MODES),
-        ):
-            if value not in valid:
-                raise KitbenchError(f"{self._where()}unknown {key} {value!r}; valid choices: {', '.join(valid)}")
-        if self.robot is not None:
-            supported = task_entry(self.task).env_class.supported_robots
-            if self.robot not in supported:
-                raise KitbenchError(
-                    f"{self._where()}robot {self.robot!r} is not supported by {self.task}; valid choices: "
-                    f"{', '.join(supported)}"
-                )
-        if isinstance(self.settle_steps, bool) or not isinstance(self.settle_steps, int) or self.settle_steps < 0:
-            raise KitbenchError(f"{self._where()}settle_steps must be an integer >= 0, got {self.settle_steps!r}")
-        object.__setattr__(self, "perturbations", _parse_perturbations(self.perturbations, self._where()))
+        try:
+            declare.validate(self)
+            self.check_robot()
+        except KitbenchError as exc:
+            raise KitbenchError(f"{self._where()}{exc}") from None
+        self.seeds = tuple(self.seeds)
+        self.perturbations = _parse_perturbations(self.perturbations, self._where())
         for name, _levels in self.perturbations:
             if PERTURBATIONS[name].images_only and self.obs_mode not in IMAGE_OBS_MODES:
                 raise KitbenchError(
@@ -103,10 +80,7 @@ class Suite:
         if bad:
             raise KitbenchError(f"{self._where()}seeds must be non-negative integers, got {bad[0]!r}")
 
-    @property
-    def robot_uid(self) -> str:
-        """The robot the suite runs: its own, else the task's default."""
-        return self.robot or task_entry(self.task).env_class.supported_robots[0]
+    __hash__ = None  # type: ignore[assignment]  # mutable settings: compared, never hashed
 
     @property
     def headline(self) -> str:
@@ -132,6 +106,10 @@ class Suite:
     def with_modes(self, **modes) -> Suite:
         """The suite with some modes overridden (None keeps the suite's own)."""
         return replace(self, **{k: v for k, v in modes.items() if v is not None})
+
+    def executor(self, **flags) -> ExecutorConfig:
+        """Where to run it: the flags given (None: not given), else the suite file's settings, else the defaults."""
+        return declare.build(ExecutorConfig, declare.resolve(("suite", self.runs_on), ("command line", flags)).values)
 
     def to_dict(self) -> dict:
         return {
@@ -181,7 +159,8 @@ def adhoc_suite(task: str, episodes: int, seed: int = DEFAULT_FIRST_SEED, **mode
     """The suite `--task T --episodes N [--seed S]` means: N consecutive seeds from S."""
     if not isinstance(episodes, int) or episodes < 1:
         raise KitbenchError(f"episodes must be a positive integer, got {episodes!r}")
-    check_seed(seed)
+    if not is_seed(seed):
+        raise KitbenchError(f"seed must be a non-negative integer, got {seed!r}")
     task = canonical_task(task)
     return Suite(
         name=f"{task}-seeds-{seed}-{seed + episodes - 1}",
@@ -201,6 +180,12 @@ def _parse_seeds(value, path: Path) -> tuple[int, ...]:
     raise KitbenchError(f"suite {path}: seeds must be a list of integers or {{ start = S, count = N }}, got {value!r}")
 
 
+SUITE_KEYS = (
+    *(name for name in declare.leaves(Suite) if name not in ("source", "runs_on", "pointcloud_points")),
+    *declare.leaves(ExecutorConfig),
+)
+
+
 def load_suite(path: str | Path) -> Suite:
     """Read a suite file (keys at top level or under `[suite]`); errors name the file and the key."""
     path = Path(path)
@@ -210,7 +195,12 @@ def load_suite(path: str | Path) -> Suite:
             raise KitbenchError(f"suite {path}: missing required key {key!r}")
     data["seeds"] = _parse_seeds(data["seeds"], path)
     data.setdefault("name", path.stem)
-    return Suite(**data, source=str(path))
+    runs_on = {k: data.pop(k) for k in list(data) if k in declare.leaves(ExecutorConfig)}
+    try:
+        declare.validate(declare.build(ExecutorConfig, runs_on))
+    except KitbenchError as exc:
+        raise KitbenchError(f"suite {path}: {exc}") from None
+    return Suite(**data, source=str(path), runs_on=runs_on)
 
 
 def shipped_suites(task: str, roots: tuple[Path, ...]) -> list[Path]:

@@ -52,7 +52,7 @@ def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, 
     from kitbench.registration import make_env
 
     return make_env(
-        suite.task,
+        suite.task_id,
         obs_mode=suite.obs_mode,
         control_mode=suite.control_mode,
         reward_mode=suite.reward_mode,
@@ -113,8 +113,8 @@ class EvalWork(Work):
         from kitbench.evaluation.episode import EpisodeScore
         from kitbench.recording.rollout import run_episode
 
-        score = EpisodeScore(self._env, job.seed, self.suite.settle_steps)
-        episode = run_episode(self._env, self._policy, job.seed, settle_steps=self.suite.settle_steps, observer=score)
+        score = EpisodeScore(self.suite.settle_steps)
+        episode = run_episode(self._env, self._policy, job.seed, settle_steps=self.suite.settle_steps, hooks=(score,))
         return score.result(), episode
 
     def run_batch(self, job: Batch) -> list[EpisodeResult]:

@@ -33,7 +33,7 @@ class PhasePlanner(ABC):
 
     `act` returns a `pd_joint_pos` arm action (the arm's joint targets, then the gripper, -1 open .. 1 closed;
     no body or base entries) whatever the env's
-    control mode: an env in another mode needs the target converted (`kitbench.policies.convert`). In the joint
+    control mode: an env in another mode needs the target converted (`kitbench.policies.joint_targets`). In the joint
     delta modes the plans keep every joint step inside the +-0.1 rad action box (2 rad/s, below joints 5-7's
     2.61 rad/s): a clipped step would leave the joints out of step with one another.
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.envs.interface import as_kitbench
+from kitbench.policies.joint_targets import joint_target_to_action
+from kitbench.policies.registry import policy_source
 
 
 class RandomPolicy:
@@ -14,7 +16,7 @@ class RandomPolicy:
     phase = None
 
     def reset(self, env, seed, obs, info):
-        self._space = env.unwrapped.action_space
+        self._space = env.action_space
         self._rng = np.random.default_rng([seed, 0x5EED])
 
     def act(self, obs):
@@ -29,8 +31,18 @@ class ZeroPolicy:
     phase = None
 
     def reset(self, env, seed, obs, info):
-        self._env = env
+        self._env = as_kitbench(env)
 
     def act(self, obs):
-        controller = self._env.unwrapped.controller
+        controller = self._env.controller
         return joint_target_to_action(self._env, controller.joint_target, -1.0)
+
+
+@policy_source("random")
+def _random(argument: str | None, device: str, options: dict) -> RandomPolicy:
+    return RandomPolicy()
+
+
+@policy_source("zero")
+def _zero(argument: str | None, device: str, options: dict) -> ZeroPolicy:
+    return ZeroPolicy()

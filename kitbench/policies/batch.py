@@ -11,6 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from kitbench.policies.base import BatchPolicy
+
 
 class IndependentPolicies:
     """One instance of a policy per episode of a batch, made by `make` as the batch needs them."""
@@ -34,7 +36,7 @@ class IndependentPolicies:
 def batched(policy, make: Callable[[], object]):
     """`policy` when it batches itself, else `IndependentPolicies` of instances made by `make` (the first of them
     `policy`)."""
-    if hasattr(policy, "act_batch"):
+    if isinstance(policy, BatchPolicy):
         return policy
     first = [policy]
     return IndependentPolicies(lambda: first.pop() if first else make())

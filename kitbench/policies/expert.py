@@ -4,18 +4,20 @@ from __future__ import annotations
 
 from typing import Any
 
+from kitbench.envs.interface import as_kitbench
 from kitbench.errors import KitbenchError
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.policies.joint_targets import joint_target_to_action
+from kitbench.policies.registry import policy_source
 from kitbench.registration import TASKS
 
 
 def check_has_expert(env) -> None:
     """Refuse a task that declares no expert, naming those that do."""
-    u = env.unwrapped
-    if not u.has_expert():
+    env = as_kitbench(env)
+    if not env.has_expert():
         with_expert = [name for name, entry in TASKS.items() if entry.env_class.has_expert()]
         raise KitbenchError(
-            f"task {u.task_id} has no expert planner; tasks with an expert: {', '.join(with_expert) or '(none)'}"
+            f"task {env.task_id} has no expert planner; tasks with an expert: {', '.join(with_expert) or '(none)'}"
         )
 
 
@@ -30,8 +32,8 @@ class ExpertPolicy:
 
     def reset(self, env, seed, obs, info):
         check_has_expert(env)
-        self._env = env
-        self.planner = env.unwrapped.make_expert()
+        self._env = as_kitbench(env)
+        self.planner = self._env.make_expert()
         self.planner.reset(obs, info)
 
     def act(self, obs):
@@ -45,3 +47,8 @@ class ExpertPolicy:
     @property
     def tcp_target(self):
         return self.planner.tcp_target if self.planner is not None else None
+
+
+@policy_source("expert")
+def _expert(argument: str | None, device: str, options: dict) -> ExpertPolicy:
+    return ExpertPolicy()

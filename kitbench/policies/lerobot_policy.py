@@ -21,9 +21,11 @@ from kitbench.envs.features import (
     observation_features,
     observation_frame,
 )
+from kitbench.envs.interface import as_kitbench
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.errors import KitbenchError, check_choice
-from kitbench.metadata import read_recording_settings
+from kitbench.metadata import RecordingInfo
+from kitbench.policies.registry import policy_source
 
 
 def _resolve(path: str) -> Path:
@@ -57,14 +59,9 @@ def trained_setting(checkpoint: Path, key: str) -> str | None:
     train = json.loads(path.read_text())
     root = (train.get("dataset") or {}).get("root")
     if root:
-        recording = read_recording_settings(root)
+        recording = RecordingInfo.read(root)
         if recording is not None:
-            value = recording.get(key)
-            if value is None and key == "robot" and recording.get("task"):
-                from kitbench.registration import task_entry
-
-                value = task_entry(recording["task"]).env_class.supported_robots[0]
-            return value
+            return recording.robot_uid if key == "robot" else getattr(recording, key)
     env = train.get("env") or {}
     return env.get(key) if env.get("type") == "kitbench" else None
 
@@ -85,6 +82,18 @@ def trained_control_mode(checkpoint: Path) -> str | None:
 DEVICES = ("auto", "cpu", "cuda")
 
 
+def parse_option(text: str) -> tuple[str, object]:
+    """`KEY=VALUE` of `--policy-option`: the value read as JSON (`0.01`, `5`, `null`, `true`), else as text."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise KitbenchError(f"policy option {text!r} is not KEY=VALUE (e.g. n_action_steps=5)")
+    try:
+        value = json.loads(raw)
+    except ValueError:
+        value = raw
+    return key.strip(), value
+
+
 def resolve_device(device: str) -> str:
     """`auto`: CUDA when torch sees it, else the CPU; `cuda` without CUDA is refused in one line."""
     check_choice("device", device, DEVICES)
@@ -97,18 +106,6 @@ def resolve_device(device: str) -> str:
             f"device 'cuda': torch {torch.__version__} sees no CUDA device here; valid choices: auto, cpu"
         )
     return device
-
-
-def parse_option(text: str) -> tuple[str, object]:
-    """`KEY=VALUE` of `--policy-option`: the value read as JSON (`0.01`, `5`, `null`, `true`), else as text."""
-    key, sep, raw = text.partition("=")
-    if not sep or not key.strip():
-        raise KitbenchError(f"policy option {text!r} is not KEY=VALUE (e.g. n_action_steps=5)")
-    try:
-        value = json.loads(raw)
-    except ValueError:
-        value = raw
-    return key.strip(), value
 
 
 def apply_options(cfg, options: dict) -> None:
@@ -185,11 +182,12 @@ class LeRobotPolicy:
         return needs
 
     def check(self, env) -> None:
+        env = as_kitbench(env)
         provided = env_features(env, self.points)
         expected = {k: tuple(v.shape) for k, v in self.config.input_features.items()}
         action = self.config.output_features.get("action")
         problems = [k for k in expected if provided.get(k) != expected[k]]
-        if action is not None and tuple(action.shape) != tuple(env.unwrapped.action_space.shape):
+        if action is not None and tuple(action.shape) != tuple(env.action_space.shape):
             problems.append("action")
         if problems:
             exp = ", ".join(f"{k}{list(v)}" for k, v in sorted(expected.items()))
@@ -197,8 +195,8 @@ class LeRobotPolicy:
             act = list(action.shape) if action is not None else None
             raise KitbenchError(
                 f"policy does not fit the env (mismatched: {', '.join(problems)}); policy expects {exp} and "
-                f"action{act}; env provides {prov} and action{list(env.unwrapped.action_space.shape)} "
-                f"({env.unwrapped.control_mode})"
+                f"action{act}; env provides {prov} and action{list(env.action_space.shape)} "
+                f"({env.control_mode})"
             )
 
     def reset(self, env, seed, obs, info):
@@ -216,7 +214,7 @@ class LeRobotPolicy:
         frame = observation_frame(env, obs, self._sampler if sampler is None else sampler)
         loaded = as_loaded({k: v for k, v in frame.items() if k in inputs}, self.depth_unit)
         batch: dict = {k: self._torch.from_numpy(v) for k, v in loaded.items()}
-        batch["task"] = env.unwrapped.task_description()
+        batch["task"] = as_kitbench(env).task_description()
         return batch
 
     def act(self, obs):
@@ -260,3 +258,8 @@ class LeRobotPolicy:
             chunk = self.policy.predict_action_chunk(self.pre(self._batch(obs)))
             steps = [self.post(chunk[:, t]).reshape(-1).cpu().numpy() for t in range(chunk.shape[1])]
         return np.stack(steps).astype(np.float32)
+
+
+@policy_source("lerobot", "lerobot:<checkpoint>", takes_options=True)
+def _lerobot(argument: str | None, device: str, options: dict) -> LeRobotPolicy:
+    return LeRobotPolicy(argument or "", device, options)

@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from kitbench.envs.interface import as_kitbench
 from kitbench.errors import KitbenchError
-from kitbench.metadata import read_recording_settings
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.metadata import RecordingInfo
+from kitbench.policies.joint_targets import joint_target_to_action
+from kitbench.policies.registry import policy_source
 
 
 class ReplayPolicy:
@@ -41,25 +43,23 @@ class ReplayPolicy:
         self.name = f"replay:{root}" + (f":{episode}" if episode is not None else "")
         self._recording = self._recording_settings()
 
-    def _recording_settings(self) -> dict:
-        """kitbench's settings of the recording ({} for a dataset kitbench did not record)."""
+    def _recording_settings(self) -> RecordingInfo | None:
+        """kitbench's settings of the recording (None for a dataset kitbench did not record)."""
         import kitbench
 
-        settings = read_recording_settings(self.root)
-        if settings is None:
-            return {}
-        version = settings.get("kitbench_version")
-        if version != kitbench.__version__:
+        info = RecordingInfo.read(self.root)
+        if info is not None and info.kitbench_version != kitbench.__version__:
             warnings.warn(
-                f"{self.root} was recorded with kitbench {version or 'before 0.2.0'}, this is "
+                f"{self.root} was recorded with kitbench {info.kitbench_version or 'before 0.2.0'}, this is "
                 f"{kitbench.__version__}: physics or assets may differ, so replays may not reproduce it",
                 stacklevel=3,
             )
-        return settings
+        return info
 
     def requirements(self) -> dict:
         """The recorded actions only mean something in the task and control mode they were recorded in."""
-        return {k: self._recording[k] for k in ("task", "control_mode")} if self._recording else {}
+        info = self._recording
+        return {} if info is None else {"task": info.task, "control_mode": info.control_mode}
 
     def reset(self, env, seed, obs, info):
         episode = self.episode if self.episode is not None else self._by_seed.get(seed)
@@ -74,16 +74,22 @@ class ReplayPolicy:
                 f"{self.root} has no episode recorded with seed {seed}; recorded seeds: {seeds[:10]}"
                 f"{'...' if len(seeds) > 10 else ''}{hint}"
             )
-        self._env = env
+        self._env = as_kitbench(env)
         self._queue = list(self._actions[episode])
-        if self._queue and self._queue[0].shape != env.unwrapped.action_space.shape:
+        if self._queue and self._queue[0].shape != self._env.action_space.shape:
             raise KitbenchError(
                 f"recorded actions have shape {self._queue[0].shape}; the env's "
-                f"{env.unwrapped.control_mode} expects {env.unwrapped.action_space.shape}"
+                f"{self._env.control_mode} expects {self._env.action_space.shape}"
             )
 
     def act(self, obs):
         if self._queue:
             return self._queue.pop(0)
         # past the recorded episode (it ended on success or at the limit): hold still
-        return joint_target_to_action(self._env, self._env.unwrapped.controller.joint_target, -1.0)
+        return joint_target_to_action(self._env, self._env.controller.joint_target, -1.0)
+
+
+@policy_source("replay", "replay:<dataset>[:episode]")
+def _replay(argument: str | None, device: str, options: dict) -> ReplayPolicy:
+    root, _, episode = (argument or "").partition(":")
+    return ReplayPolicy(root, int(episode) if episode else None)

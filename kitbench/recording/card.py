@@ -15,8 +15,8 @@ import shlex
 from pathlib import Path
 
 from kitbench.envs.features import ENVIRONMENT_STATE, POINTCLOUD_PREFIX, STATE, modality
-from kitbench.envs.modes import POINTCLOUD
-from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.envs.modalities import texture_of
+from kitbench.metadata import EPISODES_FILE, IDENTITY, RECORDING_FILE, RecordingInfo, read_episodes
 
 CARD = "README.md"
 # What each kind of feature holds, beyond its dtype and shape (`kitbench.envs.features`).
@@ -29,18 +29,21 @@ UNITS = {
 }
 
 
+# What each point cloud feature holds (`observation.pointcloud.<part>`).
+POINTCLOUD_PARTS = {
+    "xyz": "point positions, world frame, metres",
+    "rgb": "point colours",
+    "segmentation": "segmentation id per point (the id-to-name table is in meta/info.json)",
+}
+
+
 def _describe(name: str) -> str:
     if name in UNITS:
         return UNITS[name]
-    kind = modality(name)
-    if kind == "depth":
-        return "depth along the viewing axis, metres (stored within 1 mm), 0 where the pixel sees nothing"
-    if kind == "segmentation" or name == POINTCLOUD_PREFIX + "segmentation":
-        where = "per pixel" if kind == "segmentation" else "per point"
-        return f"segmentation id {where} (the id-to-name table is in meta/info.json)"
-    if kind == POINTCLOUD:
-        return {"xyz": "point positions, world frame, metres", "rgb": "point colours"}[name.rsplit(".", 1)[-1]]
-    return "camera image" if kind == "rgb" else ""
+    if name.startswith(POINTCLOUD_PREFIX):
+        return POINTCLOUD_PARTS.get(name[len(POINTCLOUD_PREFIX) :], "")
+    texture = texture_of(name)
+    return "" if texture is None else texture.description
 
 
 # An entry of `observation.state` or `observation.environment_state` whose standard deviation over the whole
@@ -77,40 +80,37 @@ def still_entries(root: Path, info: dict) -> dict[str, list[str]]:
     return found
 
 
-def record_command(recording: dict, episodes: int) -> str:
+def record_command(recording: RecordingInfo, episodes: int) -> str:
     """The command that makes this dataset again: the one it was made by when kitbench stored it (`kitbench eval
-    --save-dataset`), else `kitbench record` with its settings as flags."""
-    if recording.get("made_by"):
-        return recording["made_by"]
-    if recording.get("source"):
-        flags = ["kitbench", "convert", recording["source"], "--obs-mode", recording["obs_mode"]]
-        flags += ["--control-mode", recording["control_mode"]]
-        if recording.get("pointcloud_points") is not None:
-            flags += ["--pointcloud-points", str(recording["pointcloud_points"])]
-        if recording.get("rgb_storage"):
-            flags += ["--rgb-storage", recording["rgb_storage"]]
-        return shlex.join([*flags, "--out", "<folder>"])
-    flags = ["kitbench", "record", "--task", recording["task"], "--episodes", str(episodes)]
-    flags += ["--seed", str(recording["seed"]), "--obs-mode", recording["obs_mode"]]
-    flags += ["--control-mode", recording["control_mode"], "--policy", recording["policy"]]
-    if recording.get("robot"):
-        flags += ["--robot", recording["robot"]]
-    if recording.get("only_success"):
-        flags.append("--only-success")
-    if recording.get("action_noise"):
-        flags += ["--action-noise", str(recording["action_noise"])]
-    if recording.get("noise_phases"):
-        flags += ["--noise-phases", ",".join(recording["noise_phases"])]
-    if recording.get("settle_steps"):
-        flags += ["--settle-steps", str(recording["settle_steps"])]
-    if recording.get("reward_mode", "dense") != "dense":
-        flags += ["--reward-mode", recording["reward_mode"]]
-    if recording.get("pointcloud_points") is not None:
-        flags += ["--pointcloud-points", str(recording["pointcloud_points"])]
-    if recording.get("rgb_storage"):
-        flags += ["--rgb-storage", recording["rgb_storage"]]
-    if recording.get("label"):
-        flags += ["--label", recording["label"]]
+    --save-dataset`), else `kitbench record` (or `kitbench convert` for a conversion) with every setting that
+    differs from its default as a flag."""
+    from kitbench.config.declare import leaves
+    from kitbench.config.flags import flag_of
+    from kitbench.recording.config import RecordConfig
+
+    if recording.made_by:
+        return recording.made_by
+    declared = leaves(RecordConfig)
+    always: tuple[str, ...] = ("seed", "obs_mode", "control_mode", "policy")
+    names: tuple[str, ...]
+    if recording.source:
+        always = ("obs_mode", "control_mode")
+        flags = ["kitbench", "convert", recording.source]
+        names = ("obs_mode", "control_mode", "pointcloud_points", "rgb_storage")
+    else:
+        flags = ["kitbench", "record", "--task", recording.task, "--episodes", str(episodes)]
+        names = tuple(n for n in IDENTITY if n in declared and n != "task")
+    for name in names:
+        value = getattr(recording, name)
+        leaf = declared[name]
+        if value is None or (name not in always and value == leaf.default):
+            continue
+        if value is True:
+            flags.append(flag_of(leaf))
+        elif isinstance(value, list | tuple):
+            flags += [flag_of(leaf), ",".join(map(str, value))]
+        elif value is not False:
+            flags += [flag_of(leaf), str(value)]
     return shlex.join([*flags, "--out", "<folder>"])
 
 
@@ -119,40 +119,39 @@ def card_text(root: Path) -> str:
     from lerobot.datasets.utils import create_lerobot_dataset_card
 
     info = json.loads((root / "meta" / "info.json").read_text())
-    recording = json.loads((root / RECORDING_FILE).read_text())
-    lines = (root / EPISODES_FILE).read_text().splitlines() if (root / EPISODES_FILE).is_file() else []
-    episodes = [json.loads(line) for line in lines if line.strip()]
+    recording = RecordingInfo.require(root)
+    episodes = read_episodes(root)
     features = info["features"]
     stored = [n for n in features if n.startswith("observation.") or n in UNITS]
-    successes = sum(bool(e.get("success")) for e in episodes)
-    seeds = sorted(e["seed"] for e in episodes)
-    instructions = sorted({e["task"] for e in episodes if e.get("task")})
-    robot = info.get("robot_type") or recording.get("robot") or "?"
+    successes = sum(bool(e.success) for e in episodes)
+    seeds = sorted(e.seed for e in episodes)
+    instructions = sorted({e.task for e in episodes if e.task})
+    robot = info.get("robot_type") or recording.robot or "?"
     table = ["| feature | dtype | shape | what |", "|---|---|---|---|"]
     table += [f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n)} |" for n in stored]
-    made = [f"policy `{recording['policy']}`"]
-    if recording.get("source"):
-        made.append(f"converted from `{recording['source']}` (its executed actions replayed from each seed)")
-    if recording.get("label"):
-        made.append(f"actions labelled by `{recording['label']}` (the policy's own in `executed_action`)")
-    if recording.get("action_noise"):
-        phases = recording.get("noise_phases")
-        made.append(f"action noise {recording['action_noise']}" + (f" in phases {', '.join(phases)}" if phases else ""))
-    if recording.get("settle_steps"):
-        made.append(f"{recording['settle_steps']} steps recorded past each success")
-    if recording.get("only_success"):
+    made = [f"policy `{recording.policy}`"]
+    if recording.source:
+        made.append(f"converted from `{recording.source}` (its executed actions replayed from each seed)")
+    if recording.label:
+        made.append(f"actions labelled by `{recording.label}` (the policy's own in `executed_action`)")
+    if recording.action_noise:
+        phases = recording.noise_phases
+        made.append(f"action noise {recording.action_noise}" + (f" in phases {', '.join(phases)}" if phases else ""))
+    if recording.settle_steps:
+        made.append(f"{recording.settle_steps} steps recorded past each success")
+    if recording.only_success:
         made.append("successful episodes only")
     seed_range = f"{seeds[0]}–{seeds[-1]}" if seeds else "–"
     heading = (
-        f"A kitbench simulation dataset of **{recording['task']}** with the **{robot}** robot, recorded at "
-        f"{info['fps']} fps in control mode **`{recording['control_mode']}`** with observations "
-        f"**`{recording['obs_mode']}`**."
+        f"A kitbench simulation dataset of **{recording.task}** with the **{robot}** robot, recorded at "
+        f"{info['fps']} fps in control mode **`{recording.control_mode}`** with observations "
+        f"**`{recording.obs_mode}`**."
     )
-    made.append(f"reward `{recording.get('reward_mode', 'dense')}`")
-    how = f"{', '.join(made)}; kitbench {recording.get('kitbench_version', '?')}"
+    made.append(f"reward `{recording.reward_mode}`")
+    how = f"{', '.join(made)}; kitbench {recording.kitbench_version or '?'}"
     files = (
-        "Per-episode seed, success and task configuration: `meta/kitbench_episodes.jsonl`; the recording's settings: "
-        "`meta/kitbench_recording.json`; one MCAP log per episode (Foxglove) in `mcap/` when recorded."
+        f"Per-episode seed, success and task configuration: `{EPISODES_FILE}`; the recording's settings: "
+        f"`{RECORDING_FILE}`; one MCAP log per episode (Foxglove) in `mcap/` when recorded."
     )
     held = [
         f"- Held still: `{key}` entries {', '.join(f'`{name}`' for name in still)} vary by less than "
@@ -178,9 +177,9 @@ def card_text(root: Path) -> str:
     modalities = sorted({m for m in map(modality, features) if m is not None})
     structure = f"[meta/info.json](meta/info.json):\n```json\n{json.dumps(info, indent=4)}\n```\n"
     card = create_lerobot_dataset_card(
-        tags=["kitbench", "simulation", recording["task"], robot, *modalities],
+        tags=["kitbench", "simulation", recording.task, robot, *modalities],
         license="apache-2.0",
-        repo_id=recording.get("repo_id"),
+        repo_id=recording.repo_id,
         dataset_description=description,
         dataset_structure=structure,
     )

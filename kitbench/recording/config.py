@@ -1,193 +1,230 @@
-"""What `kitbench record` is asked to do: its settings (`RecordConfig`), recipe files, and every check that can
-fail before a file is written (`validate`)."""
+"""What `kitbench record` (and `kitbench convert`) is asked to do: `RecordConfig`, each setting declared once
+(`kitbench.config`), recipe files, and every check that can fail before a file is written (`validate`)."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from kitbench.config import declare
+from kitbench.config.checks import is_int, non_negative_int, one_of, optional, positive_int, seconds, seed
+from kitbench.config.declare import setting
+from kitbench.config.files import read_settings
 from kitbench.engine.config import ExecutorConfig
-from kitbench.envs.modes import IMAGE_OBS_MODES, POINTCLOUD, REWARD_MODES, camera_textures
+from kitbench.env_settings import EnvSettings
+from kitbench.envs.modes import camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
-from kitbench.metadata import RECORDING_FILE
+from kitbench.metadata import RECORDING_FILE, RecordingInfo
 from kitbench.recording.features import RGB_STORAGES
-from kitbench.recording.noise import check_noise_scale
-from kitbench.registration import canonical_task, task_entry
-from kitbench.settings import check_seed, read_settings
+from kitbench.recording.layout import RETIRED_SUFFIX, SESSION_SUFFIX, SHARDS_DIR, beside, journal_root
+from kitbench.registration import task_entry
+from kitbench.rollout import SettleSettings
+
+LABELS = ("expert",)
 
 
-@dataclass(frozen=True)
+def _noise(name: str, value: object) -> None:
+    if not (isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value < math.inf):
+        raise KitbenchError(f"{name} must be a finite number >= 0 (0: no noise), got {value!r}")
+
+
+def _phases(name: str, value: object) -> None:
+    if value is not None and not (isinstance(value, tuple) and value and all(isinstance(p, str) for p in value)):
+        raise KitbenchError(f"{name} must be a non-empty list of phase names, got {value!r}")
+
+
+def _repo_id(name: str, value: object) -> None:
+    """Refuse a repo id the Hugging Face Hub would refuse (lerobot writes it into the dataset and pushes under it)."""
+    if value is None:
+        return
+    from huggingface_hub.errors import HFValidationError
+
+    # public, but re-exported through a computed __all__ that mypy cannot read
+    from huggingface_hub.utils import validate_repo_id  # type: ignore[attr-defined]
+
+    try:
+        validate_repo_id(str(value))
+    except HFValidationError as exc:
+        # the hub's message ends by quoting the id and may advise on an argument the command line does not have
+        reason = (
+            str(exc).splitlines()[0].replace(f": '{value}'", "").replace(" Use `repo_type` argument if needed.", "")
+        )
+        raise KitbenchError(f"invalid repo_id {value!r}: {reason[:1].lower()}{reason[1:]}") from None
+
+
+def check_repo_id(repo_id: object) -> None:
+    _repo_id("repo_id", repo_id)
+
+
+@dataclass
+class PolicySettings:
+    # Who acts: expert, random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint> (its rollouts; with
+    # --only-success its successes).
+    policy: str = setting("expert")
+    # expert: store as each frame's action what the task's expert commands from the state the policy reached
+    # (DAgger); executed_action keeps the policy's own.
+    label: str | None = setting(None, check=one_of(LABELS, optional=True))
+
+
+@dataclass
+class DemoSettings(SettleSettings):
+    # Episodes to store.
+    episodes: int | None = setting(None, check=optional(positive_int))
+    # First seed, >= 0; episode k uses seed + k.
+    seed: int = setting(0, check=seed)
+    # Store successful episodes only.
+    only_success: bool = setting(False)
+    # Episodes to attempt, stored or not, before giving up with exit status 3 (default 10 x --episodes).
+    max_attempts: int | None = setting(None)
+    # Execute actions with seeded Gaussian noise, in units of the control mode's noise unit (0.02 rad a joint);
+    # the dataset keeps the clean actions as labels (0: none).
+    action_noise: float = setting(0.0, check=_noise)
+    # The expert phases the action noise runs in, comma-separated, e.g. transport,align (default: all phases).
+    noise_phases: tuple[str, ...] | None = setting(None, check=_phases)
+
+
+@dataclass
+class OutputSettings:
+    # The dataset folder (the LeRobot root; MCAP logs go to <out>/mcap).
+    out: Path | None = setting(None)
+    # The dataset's repo id, [namespace/]name as on the Hub (default kitbench/<task>).
+    repo_id: str | None = setting(None, check=_repo_id)
+    # How rgb frames are stored: video (h264, lossy, LeRobot's default) or images (PNG, lossless, ~4x the bytes).
+    rgb_storage: str = setting("video", check=one_of(RGB_STORAGES))
+    # Write an MCAP log per episode.
+    mcap: bool = setting(True)
+    # Continue an interrupted recording in --out.
+    resume: bool = setting(False)
+    # Replace an existing --out.
+    overwrite: bool = setting(False)
+    # Seconds between commits (0 commits after every episode). Opening a session costs ~1.5 s (lerobot re-reads
+    # the episode index), so commits are periodic; every finished episode is journaled first (recording/journal.py).
+    commit_interval: float = setting(30.0, check=seconds)
+
+
+@dataclass
+class RecordingExecutor(ExecutorConfig):
+    # Episodes per shard: each worker writes whole shards, merged at the end, so writing scales with the workers
+    # (0: one writer; docs/scale-out.md).
+    shard_episodes: int = setting(0, check=non_negative_int)
+
+
+@dataclass
 class RecordConfig:
-    task: str
-    episodes: int
-    out: Path
-    seed: int = 0
-    obs_mode: str = "state"
-    control_mode: str = "pd_joint_delta_pos"
-    policy: str = "expert"
-    only_success: bool = False
-    workers: int = 1
-    resume: bool = False
-    overwrite: bool = False
-    mcap: bool = True
-    repo_id: str | None = None
-    # Seconds between commits (publishing the episodes stored since the last one as a loadable LeRobot dataset).
-    # Opening a session costs ~1.5 s (lerobot re-reads the episode index), so commits are periodic; durability does
-    # not depend on them: every finished episode is journaled first (recording/journal.py).
-    commit_interval: float = 30.0
-    # Episodes attempted (stored or not) before the recording gives up and exits 3; None means 10 x episodes.
-    # Only --only-success with a policy that rarely succeeds gets near it, and then it bounds the run.
-    max_attempts: int | None = None
-    # Demonstrations for learning (recording/rollout.py): executed actions get seeded noise of this many units of
-    # the control mode (recording/noise.py; labels stay clean), and episodes run this many steps past success.
-    action_noise: float = 0.0
-    settle_steps: int = 0
-    # The expert's phases (`PhasePlanner.phases`) the noise runs in; None: all of them, until the first success.
-    # AssemblingKits' pockets leave 0.69-2 mm a side: at 0.5 noise through every phase the expert kept 24% of
-    # its seeds, confined to the phases before the insertion 95% (800 of 840), each demo then re-aiming over the
-    # slot from a median 5.7 mm off (docs/learnability.md).
-    noise_phases: tuple[str, ...] | None = None
-    # What `next.reward` holds (kitbench.envs.modes.REWARD_MODES); stored with the recording's settings.
-    reward_mode: str = "dense"
-    # The robot (`robot_uids`); None: the task's default (LiftPegUpright: panda). Stored with the settings.
-    robot: str | None = None
-    # Where episodes run (kitbench.engine.ExecutorConfig): this machine (`workers` processes) or a Ray cluster.
-    # Not part of the identity: a dataset is the same whichever ran it, so a resume may change them.
-    executor: str = "local"
-    ray_address: str = "auto"
-    # Episodes per shard (recording/shards.py): each worker records whole shards into datasets of its own, merged
-    # at the end, so writing scales with the workers; 0: every episode goes to the one writer here. Not part of
-    # the identity either: the merged dataset is the one a single writer makes.
-    shard_episodes: int = 0
-    # Points stored per frame by obs_mode pointcloud (`observation.pointcloud.*`), sampled from the env's fused
-    # cloud with the episode's seed (kitbench.envs.pointcloud).
-    pointcloud_points: int = DEFAULT_POINTS
-    # How rgb frames are stored (kitbench.recording.features.RGB_STORAGES): h264 video or lossless PNG images.
-    rgb_storage: str = "video"
-    # Who labels each frame's `action`: None, the policy that acts; "expert", the task's expert, asked at every
-    # state the policy reaches (DAgger), while `executed_action` keeps what the policy did.
-    label: str | None = None
-    # A kitbench recording to re-simulate (`kitbench convert`): its seeds, in its order, replayed with the actions its
-    # robot executed (kitbench.recording.convert); None: the policy acts on consecutive seeds from `seed`.
-    source: Path | None = None
+    """`kitbench record`: which env (`env`), who acts (`policy`), which episodes (`demo`), where they run
+    (`executor`) and where they go (`output`). A conversion names its `source` recording."""
 
-    def __post_init__(self):
-        # stored by its short name (a gym id `kitbench/<task>` is accepted), so the dataset's settings and a
-        # --resume comparison do not depend on the spelling
-        object.__setattr__(self, "task", canonical_task(self.task))
-        if isinstance(self.noise_phases, list):  # as a recipe (TOML) writes it; checked by `validate`
-            object.__setattr__(self, "noise_phases", tuple(self.noise_phases))
+    env: EnvSettings = field(default_factory=EnvSettings)
+    policy: PolicySettings = field(default_factory=PolicySettings)
+    demo: DemoSettings = field(default_factory=DemoSettings)
+    executor: RecordingExecutor = field(default_factory=RecordingExecutor)
+    output: OutputSettings = field(default_factory=OutputSettings)
+    # A kitbench recording to re-simulate (`kitbench convert`): its seeds, in its order, replayed with the actions
+    # its robot executed; None: the policy acts on consecutive seeds from `seed`.
+    source: Path | None = setting(None, cli=False)
+
+    @classmethod
+    def of(cls, task: str | None = None, episodes: int | None = None, out: Path | str | None = None, **settings: Any):
+        """A config from flat settings (`task, episodes, out, seed=..., obs_mode=...`), as a recipe or the flags
+        give them."""
+        named = {"task": task, "episodes": episodes, "out": out}
+        config = declare.build(cls, {**{k: v for k, v in named.items() if v is not None}, **settings})
+        if config.output.out is not None:
+            config.output.out = Path(config.output.out)
+        if isinstance(config.demo.noise_phases, list):  # as a recipe (TOML) writes it
+            config.demo.noise_phases = tuple(config.demo.noise_phases)
+        return config
+
+    def replace(self, **settings: Any) -> RecordConfig:
+        return declare.replace(self, **settings)
 
     @property
-    def executor_config(self) -> ExecutorConfig:
-        return ExecutorConfig(self.executor, self.workers, self.ray_address)
+    def out(self) -> Path:
+        assert self.output.out is not None, "validated: a recording has an output folder"
+        return self.output.out
+
+    @property
+    def task(self) -> str:
+        assert self.env.task is not None, "validated: a recording has a task"
+        return self.env.task
+
+    @property
+    def episodes(self) -> int:
+        assert self.demo.episodes is not None, "validated: a recording has an episode count"
+        return self.demo.episodes
 
     @property
     def dataset_repo_id(self) -> str:
-        return self.repo_id or f"kitbench/{self.task}"
+        return self.output.repo_id or f"kitbench/{self.task}"
 
-    def identity(self) -> dict:
-        """The settings a resumed recording must share with the original, including the kitbench version:
-        episodes are reproducible from their seed only under the same physics and assets."""
+    def info(self, **more: Any) -> RecordingInfo:
+        """The recording's settings as its dataset stores them."""
         import kitbench
 
-        settings = (
-            "task",
-            "seed",
-            "obs_mode",
-            "control_mode",
-            "policy",
-            "only_success",
-            "action_noise",
-            # None (noise through every phase) also reads back from recordings made before the option existed
-            "noise_phases",
-            "settle_steps",
-            "reward_mode",
-            # None: the task's default robot; a recording made before robots could be chosen has no `robot`
-            # setting, which reads as None too, so it resumes under the default and refuses another robot
-            "robot",
+        return RecordingInfo(
+            task=self.task,
+            seed=self.demo.seed,
+            obs_mode=self.env.obs_mode,
+            control_mode=self.env.control_mode,
+            policy=self.policy.policy,
+            only_success=self.demo.only_success,
+            action_noise=self.demo.action_noise,
+            noise_phases=None if self.demo.noise_phases is None else list(self.demo.noise_phases),
+            settle_steps=self.demo.settle_steps,
+            reward_mode=self.env.reward_mode,
+            robot=self.env.robot,
+            pointcloud_points=self.env.pointcloud_points if self.env.obs_mode == "pointcloud" else None,
+            rgb_storage=self.output.rgb_storage,
+            label=self.policy.label,
+            source=None if self.source is None else str(self.source),
+            kitbench_version=kitbench.__version__,
+            repo_id=self.dataset_repo_id,
+            **more,
         )
-        identity = {k: getattr(self, k) for k in settings}
-        if self.obs_mode == POINTCLOUD:  # recordings of other modes read back without it, as before it existed
-            identity["pointcloud_points"] = self.pointcloud_points
-        if self.obs_mode != "state":  # recordings made before the option stored video (RECORDED_BEFORE)
-            identity["rgb_storage"] = self.rgb_storage
-        if self.label is not None:  # likewise: a recording without labels reads back None
-            identity["label"] = self.label
-        if self.source is not None:
-            identity["source"] = str(self.source)
-        if self.noise_phases is not None:  # a list, as the JSON it is saved in reads back
-            identity["noise_phases"] = list(self.noise_phases)
-        return {**identity, "kitbench_version": kitbench.__version__}
 
 
-# What a setting missing from an older recording's saved settings meant when it was recorded.
-RECORDED_BEFORE = {"rgb_storage": "video"}
-RECIPE_KEYS = {f.name for f in dataclasses.fields(RecordConfig)}
+RECIPE_KEYS = tuple(name for name, leaf in declare.leaves(RecordConfig).items() if name != "source")
 RECIPE_TABLE = "record"
-OBS_MODES_RECORDABLE = ("state", *IMAGE_OBS_MODES)
+REQUIRED = ("task", "episodes", "out")
 
 
-def load_recipe(path: Path, **overrides) -> RecordConfig:
-    """A TOML recipe: the same keys as the command line's long options (`[record]` table or top level)."""
+def load_recipe(path: Path, **overrides: Any) -> RecordConfig:
+    """A TOML recipe: the same keys as the command line's long options (`[record]` table or top level); non-None
+    `overrides` win."""
     path = Path(path)
     data = read_settings(path, "recipe", RECIPE_TABLE, RECIPE_KEYS)
-    for key in ("task", "episodes", "out"):
-        if key not in data and key not in overrides:
+    for key in REQUIRED:
+        if key not in data and overrides.get(key) is None:
             raise KitbenchError(f"recipe {path}: missing required key {key!r}")
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    data["out"] = Path(data["out"])
-    return RecordConfig(**data)
+    return RecordConfig.of(**declare.resolve(("recipe", data), ("command line", overrides)).values)
 
 
 def validate(config: RecordConfig) -> None:
     """Every check that can fail before a file is written."""
+    missing = [f"--{k}" for k in REQUIRED if declare.get(config, k) is None]
+    if missing:
+        raise KitbenchError(f"missing {', '.join(missing)} (or give a recipe file)")
     task_entry(config.task)
-    if config.obs_mode not in OBS_MODES_RECORDABLE:
+    declare.validate(config)
+    config.env.check_robot()
+    demo = config.demo
+    if config.policy.label is not None and config.policy.policy == config.policy.label:
         raise KitbenchError(
-            f"unknown obs_mode {config.obs_mode!r} for recording; valid choices: {', '.join(OBS_MODES_RECORDABLE)}"
+            f"label {config.policy.label!r} labels policy {config.policy.policy!r} with itself; drop --label"
         )
-    if not _is_count(config.episodes):
-        raise KitbenchError(f"episodes must be a positive integer, got {config.episodes!r}")
-    if config.reward_mode not in REWARD_MODES:
-        raise KitbenchError(f"unknown reward_mode {config.reward_mode!r}; valid choices: {', '.join(REWARD_MODES)}")
-    check_seed(config.seed)
-    _check_label(config)
-    if not _is_count(config.pointcloud_points):
-        raise KitbenchError(f"pointcloud_points must be a positive integer, got {config.pointcloud_points!r}")
-    if config.rgb_storage not in RGB_STORAGES:
-        raise KitbenchError(f"unknown rgb_storage {config.rgb_storage!r}; valid choices: {', '.join(RGB_STORAGES)}")
-    check_noise_scale(config.action_noise)
     _check_noise_phases(config)
-    if (
-        not (isinstance(config.settle_steps, int) and not isinstance(config.settle_steps, bool))
-        or config.settle_steps < 0
-    ):
-        raise KitbenchError(f"settle_steps must be an integer >= 0, got {config.settle_steps!r}")
-    interval = config.commit_interval
-    # nan compares false with everything: a recording asked to commit every nan seconds would never commit
-    if not (isinstance(interval, int | float) and not isinstance(interval, bool) and 0 <= interval < math.inf):
-        raise KitbenchError(f"commit_interval must be a finite number of seconds >= 0, got {interval!r}")
-    if config.max_attempts is not None and not (
-        _is_count(config.max_attempts) and config.max_attempts >= config.episodes
-    ):
+    if demo.max_attempts is not None and not (is_int(demo.max_attempts) and demo.max_attempts >= config.episodes):
         raise KitbenchError(
-            f"max_attempts must be a positive integer >= episodes ({config.episodes}), got {config.max_attempts!r}"
+            f"max_attempts must be a positive integer >= episodes ({config.episodes}), got {demo.max_attempts!r}"
         )
-    if config.repo_id is not None:
-        check_repo_id(config.repo_id)
-    if config.resume and config.overwrite:
+    out = config.output
+    if out.resume and out.overwrite:
         raise KitbenchError("--resume and --overwrite exclude each other")
-    config.executor_config.validate()
-    if not (isinstance(config.shard_episodes, int) and not isinstance(config.shard_episodes, bool)) or (
-        config.shard_episodes < 0
-    ):
-        raise KitbenchError(f"shard_episodes must be an integer >= 0, got {config.shard_episodes!r}")
-    if config.shard_episodes and config.only_success:
+    config.executor.validate()
+    if config.executor.shard_episodes and demo.only_success:
         raise KitbenchError(
             "shard_episodes and only_success exclude each other: which seeds a shard keeps would depend on the "
             "shard size; record all episodes, or record without shards"
@@ -195,7 +232,7 @@ def validate(config: RecordConfig) -> None:
     _check_output(config)
     from kitbench.doctor import require_renderer
 
-    require_renderer(config.obs_mode)
+    require_renderer(config.env.obs_mode)
     if config.source is not None:
         _check_source(config)
         return
@@ -203,8 +240,8 @@ def validate(config: RecordConfig) -> None:
     try:
         from kitbench.policies.registry import make_policy
 
-        policy = make_policy(config.policy)
-        if config.policy == "expert" or config.label == "expert":
+        policy = make_policy(config.policy.policy)
+        if config.policy.policy == "expert" or config.policy.label == "expert":
             from kitbench.policies.expert import check_has_expert
 
             check_has_expert(env)
@@ -216,63 +253,48 @@ def validate(config: RecordConfig) -> None:
 
 def _check_source(config: RecordConfig) -> None:
     """A conversion's source is a kitbench recording of this task, replayed without noise of its own."""
-    from kitbench.recording.source import SourceRecording
-
-    source = SourceRecording(config.source)  # type: ignore[arg-type]  # only called with one
-    if source.settings["task"] != config.task:
-        raise KitbenchError(f"{config.source} records {source.settings['task']}, not {config.task}")
-    if config.action_noise or config.label is not None:
+    source = RecordingInfo.require(config.source)  # type: ignore[arg-type]  # only called with one
+    if source.task != config.task:
+        raise KitbenchError(f"{config.source} records {source.task}, not {config.task}")
+    if config.demo.action_noise or config.policy.label is not None:
         raise KitbenchError("a conversion replays its source's actions: no action_noise or label of its own")
-    if config.shard_episodes:
+    if config.executor.shard_episodes:
         raise KitbenchError("a conversion runs its source's seeds on one writer: drop shard_episodes")
     env = make_recording_env(config)  # raises on a bad obs mode, control mode or robot
     env.close()
-
-
-LABELS = ("expert",)
-
-
-def _check_label(config: RecordConfig) -> None:
-    if config.label is None:
-        return
-    if config.label not in LABELS:
-        raise KitbenchError(f"unknown label {config.label!r}; valid choices: {', '.join(LABELS)}")
-    if config.policy == config.label:
-        raise KitbenchError(f"label {config.label!r} labels policy {config.policy!r} with itself; drop --label")
 
 
 def _check_policy_fits(config: RecordConfig, policy, env) -> None:
     """A trained policy records in the modes and on the robot it was trained for (`requirements()`), asked for
     explicitly: a dataset's settings are the command's, never silently the checkpoint's. Then its own check on
     the env (inputs and action size)."""
-    needs = policy.requirements() if hasattr(policy, "requirements") else {}
-    u = env.unwrapped
-    asked = {"control_mode": config.control_mode, "robot": u.robot_uid, "obs_mode": config.obs_mode}
+    from kitbench.policies.base import requirements_of
+
+    asked = {"control_mode": config.env.control_mode, "robot": config.env.robot_uid, "obs_mode": config.env.obs_mode}
     flags = {"control_mode": "--control-mode", "robot": "--robot", "obs_mode": "--obs-mode"}
-    for key, value in needs.items():
+    for key, value in requirements_of(policy).items():
         if key in asked and value != asked[key]:
-            if key == "obs_mode" and camera_textures(value) <= camera_textures(config.obs_mode):
+            if key == "obs_mode" and camera_textures(value) <= camera_textures(config.env.obs_mode):
                 continue  # the recording asks for more than the policy reads: it gets what it reads
             raise KitbenchError(
-                f"policy {config.policy} needs {key} {value} (recording asks for {asked[key]}); record with "
+                f"policy {config.policy.policy} needs {key} {value} (recording asks for {asked[key]}); record with "
                 f"{flags[key]} {value}"
             )
-    if hasattr(policy, "check"):
-        policy.check(env)
+    from kitbench.policies.base import check_fits
+
+    check_fits(policy, env)
 
 
 def _check_noise_phases(config: RecordConfig) -> None:
     """`noise_phases` names phases of the task's expert, for a recording with noise, run by that expert."""
-    phases = config.noise_phases
+    phases = config.demo.noise_phases
     if phases is None:
         return
-    if not (isinstance(phases, tuple) and phases and all(isinstance(p, str) for p in phases)):
-        raise KitbenchError(f"noise_phases must be a non-empty list of phase names, got {phases!r}")
-    if not config.action_noise:
+    if not config.demo.action_noise:
         raise KitbenchError("noise_phases needs action_noise > 0: it names the expert phases the noise runs in")
-    if config.policy != "expert":
-        raise KitbenchError(f"noise_phases names phases of the expert; policy {config.policy!r} has none")
-    expert = task_entry(config.task).env_class.expert_class(config.robot)
+    if config.policy.policy != "expert":
+        raise KitbenchError(f"noise_phases names phases of the expert; policy {config.policy.policy!r} has none")
+    expert = task_entry(config.task).env_class.expert_class(config.env.robot)
     valid = getattr(expert, "phases", ())
     if not valid:
         raise KitbenchError(f"noise_phases: the {config.task} expert declares no phases (`PhasePlanner.phases`)")
@@ -283,54 +305,22 @@ def _check_noise_phases(config: RecordConfig) -> None:
             )
 
 
-def _is_count(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
-
-
-def check_repo_id(repo_id) -> None:
-    """Refuse a repo id the Hugging Face Hub would refuse (lerobot writes it into the dataset and pushes under it)."""
-    from huggingface_hub.errors import HFValidationError
-
-    # public, but re-exported through a computed __all__ that mypy cannot read
-    from huggingface_hub.utils import validate_repo_id  # type: ignore[attr-defined]
-
-    try:
-        validate_repo_id(repo_id)
-    except HFValidationError as exc:
-        # the hub's message ends by quoting the id and may advise on an argument the command line does not have
-        reason = (
-            str(exc).splitlines()[0].replace(f": '{repo_id}'", "").replace(" Use `repo_type` argument if needed.", "")
-        )
-        raise KitbenchError(f"invalid repo_id {repo_id!r}: {reason[:1].lower()}{reason[1:]}") from None
-
-
 def _leftovers(out: Path) -> list[Path]:
     """What a recording at `out` leaves besides the dataset folder: the folders of a commit a kill interrupted
     (restored by the recorder) and the journal of episodes not yet committed (a kill before the first commit
     leaves only that)."""
-    from kitbench.recording.dataset import RETIRED_SUFFIX
-    from kitbench.recording.journal import journal_root
-
-    return [p for p in (out.with_name(out.name + RETIRED_SUFFIX), journal_root(out)) if p.is_dir()]
+    return [p for p in (beside(out, RETIRED_SUFFIX), journal_root(out)) if p.is_dir()]
 
 
-def _saved_settings(out: Path) -> list[dict]:
+def _saved_settings(out: Path) -> list[RecordingInfo]:
     """The settings each part of an interrupted recording at `out` was made with."""
-    from kitbench.recording.dataset import RETIRED_SUFFIX, SESSION_SUFFIX
-    from kitbench.recording.journal import SETTINGS_FILE, journal_root
+    from kitbench.recording.journal import EpisodeJournal
 
-    candidates = [out / RECORDING_FILE]
+    folder = out
     if not out.exists():  # killed inside a commit: the recorder restores the session, else the retired folder
-        session, retired = (out.with_name(out.name + suffix) for suffix in (SESSION_SUFFIX, RETIRED_SUFFIX))
-        candidates = [(session if session.is_dir() else retired) / RECORDING_FILE]
-    candidates.append(journal_root(out) / SETTINGS_FILE)
-    saved = []
-    for path in candidates:
-        if path.is_file():
-            try:
-                saved.append(json.loads(path.read_text()))
-            except (OSError, json.JSONDecodeError) as exc:
-                raise KitbenchError(f"cannot resume {out}: {path} is unreadable ({exc})") from exc
+        session, retired = beside(out, SESSION_SUFFIX), beside(out, RETIRED_SUFFIX)
+        folder = session if session.is_dir() else retired
+    saved = [info for info in (RecordingInfo.read(folder), EpisodeJournal(out).settings()) if info is not None]
     return saved
 
 
@@ -342,7 +332,8 @@ def _check_output(config: RecordConfig) -> None:
         where = "" if blocker == out else f" ({blocker} is a file)"
         raise KitbenchError(f"output {out} is not a folder{where}; give --out a folder path")
     leftovers = _leftovers(out)
-    if not config.resume and not config.overwrite:
+    resume, overwrite = config.output.resume, config.output.overwrite
+    if not resume and not overwrite:
         if out.exists():
             raise KitbenchError(
                 f"output folder {out} exists; pass --resume to continue it or --overwrite to replace it"
@@ -352,20 +343,17 @@ def _check_output(config: RecordConfig) -> None:
                 f"an unfinished recording of {out} exists ({leftovers[0]}); pass --resume to continue it or "
                 "--overwrite to replace it"
             )
-    if not config.resume:
+    if not resume:
         return
-    from kitbench.recording.journal import SHARDS_DIR, journal_root
-
-    if (journal_root(out) / SHARDS_DIR).is_dir() and not config.shard_episodes:
+    if (journal_root(out) / SHARDS_DIR).is_dir() and not config.executor.shard_episodes:
         raise KitbenchError(f"{out} is an unfinished sharded recording; resume it with --shard-episodes N")
     if not out.exists() and not leftovers:
         raise KitbenchError(f"nothing to resume at {out} (drop --resume to start one)")
-    if out.exists() and not (out / RECORDING_FILE).is_file():
+    if out.exists() and RecordingInfo.read(out) is None:
         raise KitbenchError(f"cannot resume {out}: it is not a kitbench recording ({RECORDING_FILE} missing)")
+    asked = config.info()
     for saved in _saved_settings(out):
-        identity = config.identity()
-        recorded = {k: saved.get(k, RECORDED_BEFORE.get(k)) for k in identity}
-        mismatched = {k: (recorded[k], v) for k, v in identity.items() if recorded[k] != v}
+        mismatched = saved.differences(asked)
         if mismatched:
             detail = ", ".join(f"{k}: recorded {a!r}, asked {b!r}" for k, (a, b) in mismatched.items())
             raise KitbenchError(f"cannot resume {out} with different settings ({detail})")
@@ -374,10 +362,14 @@ def _check_output(config: RecordConfig) -> None:
 def make_recording_env(config: RecordConfig):
     from kitbench.registration import make_env
 
+    env = config.env
     return make_env(
         config.task,
-        obs_mode=config.obs_mode,
-        control_mode=config.control_mode,
-        reward_mode=config.reward_mode,
-        robot_uids=config.robot,
+        obs_mode=env.obs_mode,
+        control_mode=env.control_mode,
+        reward_mode=env.reward_mode,
+        robot_uids=env.robot,
     )
+
+
+__all__ = ["DEFAULT_POINTS", "LABELS", "RecordConfig", "load_recipe", "make_recording_env", "validate"]

@@ -6,7 +6,7 @@ logs), into an env in the asked obs mode and control mode. The same control mode
 they are: PhysX is deterministic in the seed and the actions, so every state, and so every frame, is the source's.
 Another control mode tracks the source's joint trajectory: a shadow env in the source's mode replays the executed
 actions, and each step the new env is given the action that drives its arm to the joint targets the shadow's
-controller set (`policies.convert.joint_target_to_action`); the labels (`action`) are re-expressed the same way.
+controller set (`policies.joint_targets.joint_target_to_action`); the labels (`action`) are re-expressed the same way.
 Where the new mode cannot command a target in one step (a delta mode's box), the arm gets up to
 `CATCH_UP_STEPS` more steps to reach it, so a converted episode may be longer than its source.
 
@@ -17,13 +17,14 @@ in the source, whatever the timing. An episode that diverges is reported and not
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from kitbench.config.declare import resolve
+from kitbench.envs.interface import as_kitbench
 from kitbench.errors import KitbenchError
-from kitbench.policies.convert import joint_target_to_action
+from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.recording.config import RecordConfig
 from kitbench.recording.source import SourceRecording
 
@@ -44,55 +45,65 @@ POSITION_TOLERANCE = 0.01
 CATCH_UP_STEPS = 2
 
 
-class _Tracker:
-    """One converted episode's actions, step by step: the source's as they are in the same control mode, else
-    re-expressed in the new one by tracking a shadow env in the source's mode. `label()` then `act()` each step.
+class SourceReplay:
+    """A policy that replays one source episode a step at a time: each `act` returns what the robot executes and
+    sets `label`, the frame's label. In the same control mode they are the source's executed action and label;
+    in another, both are re-expressed from the joint targets a shadow env in the source's mode reaches.
 
     A source step whose joint target lies beyond what one step of the new mode may command (a delta mode's box)
     is given up to `CATCH_UP_STEPS` more steps aimed at the same target before the next source step is taken, as
     ManiSkill's `replay_trajectory` gives one: the converted episode is then longer than its source, and
     `starts` says at which of its frames each source step began."""
 
+    name = "convert"
+    phase = None
+
     def __init__(self, source: SourceRecording, shadow_env):
         self.source = source
         self.shadow = shadow_env  # None: the same control mode
         self.starts: list[int] = []
+        self.label: np.ndarray | None = None
         self._t = 0
         self._frame = 0
         self._extra = 0  # steps spent on the current source step beyond its first
-        self._final = True  # this env step completes the source step
         self._targets: tuple[np.ndarray, np.ndarray] | None = None  # (executed, label) joint targets of step t
         self._hand: float | None = None  # the hand's command of the last source step completed
-        self._executed: np.ndarray | None = None
 
-    def reset(self, env, seed: int) -> None:
-        self.env = env
+    def reset(self, env, seed: int, obs=None, info=None) -> None:
+        self.env = as_kitbench(env)
         self.frames = self.source.episode(seed)
         self.starts = []
         self._t = self._frame = self._extra = 0
         self._hand = None
-        self._n_extra = len(env.unwrapped.robot_spec.extra_action_names)  # body joints and base, after the hand
+        self._n_extra = len(self.env.robot_spec.extra_action_names)  # body joints and base, after the hand
         if self.shadow is not None:
             self.shadow.reset(seed=seed)
 
     def _hold(self) -> np.ndarray:
-        u = self.env.unwrapped
-        return joint_target_to_action(self.env, u.controller.joint_target, -1.0)
+        return joint_target_to_action(self.env, self.env.controller.joint_target, -1.0)
 
-    def label(self) -> np.ndarray:
-        """This step's label (`action`); also works out the step's executed action."""
+    def act(self, obs) -> np.ndarray:
+        executed, self.label, final = self._next()
+        self._frame += 1
+        if final:
+            self._t += 1
+            self._extra = 0
+        else:
+            self._extra += 1
+        return executed
+
+    def _next(self) -> tuple[np.ndarray, np.ndarray, bool]:
+        """(executed action, label, whether this env step completes the source step)."""
         t = self._t
-        self._final = True
         if t >= len(self.frames["executed"]):  # past the source's end: hold still, as a replay does
-            self._executed = self._hold()
-            return self._executed
+            hold = self._hold()
+            return hold, hold, True
         executed, label = self.frames["executed"][t], self.frames["action"][t]
         if self._extra == 0:
             self.starts.append(self._frame)
         if self.shadow is None:
-            self._executed = executed
-            return label
-        s = self.shadow.unwrapped
+            return executed, label, True
+        s = self.shadow
         n_arm = s.controller.action_space.shape[0] - 1
         if self._extra == 0:  # the source's step, played once in the shadow
             label_target = s.controller.preview(label[:n_arm], s.robot.arm_qpos())  # from the state before the step
@@ -100,17 +111,17 @@ class _Tracker:
             self._targets = (s.controller.joint_target.copy(), label_target)
         assert self._targets is not None
         executed_target, label_target = self._targets
-        self._executed, fits = self._express(executed_target, executed, n_arm)
+        expressed, fits = self._express(executed_target, executed, n_arm)
         labelled = self._express(label_target, label, n_arm)[0]
-        self._final = fits or self._extra >= CATCH_UP_STEPS
-        if not self._final:
+        final = fits or self._extra >= CATCH_UP_STEPS
+        if not final:
             # the arm catches up first; the rest of the step's command (hand, body joints, base) goes with the
             # step that completes it, so that it is applied once, with the arm where the source's was
-            self._hold_rest(self._executed)
+            self._hold_rest(expressed)
             self._hold_rest(labelled)
         else:
-            self._hand = float(self._executed[-1 - self._n_extra])
-        return labelled
+            self._hand = float(expressed[-1 - self._n_extra])
+        return expressed, labelled, final
 
     def _hold_rest(self, action: np.ndarray) -> None:
         """Keep the hand at its last command and stop the body joints and base (zero deltas and velocities)."""
@@ -126,61 +137,9 @@ class _Tracker:
         extra = source_action[n_arm + 1 :]  # body joints and base: deltas and velocities whatever the arm's mode
         if len(extra):
             action[-len(extra) :] = extra
-        space = self.env.unwrapped.action_space
+        space = self.env.action_space
         clipped = np.clip(action, space.low, space.high)
         return clipped, bool(np.allclose(clipped, action, atol=1e-6))
-
-    def act(self) -> np.ndarray:
-        assert self._executed is not None
-        self._frame += 1
-        if self._final:
-            self._t += 1
-            self._extra = 0
-        else:
-            self._extra += 1
-        return self._executed
-
-
-class _Label:
-    """The labeler face of a tracker (`rollout.run_episode` asks it first each step)."""
-
-    def __init__(self, tracker: _Tracker):
-        self.tracker = tracker
-
-    def reset(self, env, seed, obs, info):
-        self.tracker.reset(env, seed)
-
-    def act(self, obs):
-        return self.tracker.label()
-
-
-class _Act:
-    """The acting face of a tracker: the step's executed action."""
-
-    name = "convert"
-    phase = None
-
-    def __init__(self, tracker: _Tracker):
-        self.tracker = tracker
-
-    def reset(self, env, seed, obs, info):
-        pass
-
-    def act(self, obs):
-        return self.tracker.act()
-
-
-@dataclass
-class Replay:
-    """What converts a recording: the acting policy and the labeler for `rollout.run_episode`, and after each
-    episode the frame at which each source step began (`starts`, for `divergence`)."""
-
-    policy: _Act
-    labeler: _Label
-
-    @property
-    def starts(self) -> list[int]:
-        return self.policy.tracker.starts
 
 
 def convert_config(source_root: Path, out: Path, **settings):
@@ -188,45 +147,38 @@ def convert_config(source_root: Path, out: Path, **settings):
     reward and settling, with `settings` (obs_mode, control_mode, workers, ...; None: the source's or the
     default) on top."""
     source = SourceRecording(source_root)
-    s = source.settings
+    info = source.info
     if not source.seeds:
         raise KitbenchError(f"{source_root} holds no episode to convert")
     base = {
-        "obs_mode": s["obs_mode"],
-        "control_mode": s["control_mode"],
-        "robot": s.get("robot"),
-        "reward_mode": s.get("reward_mode", "dense"),
-        "settle_steps": s.get("settle_steps", 0),
-        "repo_id": s.get("repo_id"),
-        "rgb_storage": s.get("rgb_storage", "video"),
+        "obs_mode": info.obs_mode,
+        "control_mode": info.control_mode,
+        "robot": info.robot,
+        "reward_mode": info.reward_mode,
+        "settle_steps": info.settle_steps,
+        "repo_id": info.repo_id,
+        "rgb_storage": info.rgb_storage,
     }
-    base.update({k: v for k, v in settings.items() if v is not None})
-    return RecordConfig(
-        task=s["task"],
-        episodes=len(source.seeds),
-        out=Path(out),
-        seed=min(source.seeds),
-        policy=s["policy"],
-        source=Path(source_root),
-        **base,
-    )
+    fixed = {
+        "task": info.task,
+        "episodes": len(source.seeds),
+        "out": Path(out),
+        "seed": min(source.seeds),
+        "policy": info.policy,
+        "source": Path(source_root),
+    }
+    return RecordConfig.of(**resolve(("source", base), ("command line", settings), ("conversion", fixed)).values)
 
 
-def make_replay(source: SourceRecording, control_mode: str) -> Replay:
+def make_replay(source: SourceRecording, control_mode: str) -> SourceReplay:
     """What replays `source` in `control_mode`."""
     from kitbench.registration import make_env
 
-    settings = source.settings
+    info = source.info
     shadow = None
-    if control_mode != settings["control_mode"]:
-        shadow = make_env(
-            settings["task"],
-            obs_mode="state",
-            control_mode=settings["control_mode"],
-            robot_uids=settings.get("robot"),
-        )
-    tracker = _Tracker(source, shadow)
-    return Replay(_Act(tracker), _Label(tracker))
+    if control_mode != info.control_mode:
+        shadow = make_env(info.task, obs_mode="state", control_mode=info.control_mode, robot_uids=info.robot)
+    return SourceReplay(source, shadow)
 
 
 def divergence(source: SourceRecording, episode, pose_columns: list[int], starts: list[int]) -> str | None:
@@ -270,5 +222,5 @@ def _to_polyline(points: np.ndarray, path: np.ndarray) -> float:
 
 def pose_position_columns(env) -> list[int]:
     """Indices of the x, y, z entries of every pose field in the env's `observation.environment_state`."""
-    names = env.unwrapped.environment_state_names()
+    names = as_kitbench(env).environment_state_names()
     return [i for i, n in enumerate(names) if n.endswith((".x", ".y", ".z")) and n.rsplit(".", 1)[0].endswith("pose")]

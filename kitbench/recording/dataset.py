@@ -7,14 +7,14 @@ rename. A kill at any point leaves the published folder as it was at the last co
 killed session left behind.
 
 Per-episode facts LeRobot has no place for (seed, success, task configuration) go to
-`meta/kitbench_episodes.jsonl`, written with the same commit, and to the `episode_seed` column.
+`meta/kitbench_episodes.jsonl` (`kitbench.metadata`), written with the same commit, and to the `episode_seed`
+column.
 """
 
 from __future__ import annotations
 
 import ctypes
 import importlib
-import json
 import os
 import shutil
 import time
@@ -24,12 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episodes, write_episodes
 from kitbench.recording.card import write_card
+from kitbench.recording.layout import RETIRED_SUFFIX, SESSION_SUFFIX
 
-__all__ = ["EPISODES_FILE", "RECORDING_FILE", "DatasetWriter", "recover"]
-SESSION_SUFFIX = ".session"
-RETIRED_SUFFIX = ".retired"
+__all__ = ["DatasetWriter", "recover"]
 
 
 def _video_encoder():
@@ -127,26 +126,19 @@ def quiet_video_logs() -> None:
 class DatasetWriter:
     """Adds whole episodes to a LeRobot dataset under `root`, committing them in sessions."""
 
-    def __init__(self, root: Path, repo_id: str, fps: int, features: dict, robot_type: str, recording: dict):
+    def __init__(self, root: Path, info: RecordingInfo, features: dict, robot_type: str):
         self.root = Path(root)
-        self.repo_id = repo_id
-        self.fps = fps
+        self.info = info
+        self.repo_id = info.repo_id or f"kitbench/{info.task}"
+        self.fps = info.fps
         self.features = features
         self.robot_type = robot_type
-        self.recording = recording
         self._session: Any = None  # LeRobotDataset being written in the session folder (lerobot is untyped)
-        self._pending: list[dict] = []  # kitbench metadata of episodes in the open session
+        self._pending: list[EpisodeInfo] = []  # kitbench metadata of episodes in the open session
         self._session_started = 0.0
         quiet_video_logs()
 
     # -- state of the published dataset ------------------------------------------------------------
-    @staticmethod
-    def committed_episodes(root: Path) -> list[dict]:
-        path = Path(root) / EPISODES_FILE
-        if not path.is_file():
-            return []
-        return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
     @property
     def session_root(self) -> Path:
         return self.root.with_name(self.root.name + SESSION_SUFFIX)
@@ -176,7 +168,7 @@ class DatasetWriter:
             )
         self._session_started = time.monotonic()
 
-    def add_episode(self, record, extra: dict) -> int:
+    def add_episode(self, record) -> int:
         """Append one finished episode; returns its episode index in the dataset."""
         if self._session is None:
             self._open_session()
@@ -189,16 +181,9 @@ class DatasetWriter:
             )
         ds.save_episode()
         self._pending.append(
-            {
-                "episode_index": index,
-                "seed": record.seed,
-                "success": record.success,
-                "length": record.length,
-                "first_success": record.first_success,
-                "task": record.task,
-                **record.config,
-                **extra,
-            }
+            EpisodeInfo(
+                index, record.seed, record.success, record.length, record.first_success, record.task, record.config
+            )
         )
         return index
 
@@ -212,9 +197,8 @@ class DatasetWriter:
         self._session.finalize()
         self._session = None
         session = self.session_root
-        lines = [json.dumps(e) for e in self.committed_episodes(session) + self._pending]
-        (session / EPISODES_FILE).write_text("\n".join(lines) + "\n")
-        (session / RECORDING_FILE).write_text(json.dumps(self.recording, indent=2) + "\n")
+        write_episodes(session, read_episodes(session) + self._pending)
+        self.info.write(session)
         write_card(session)
         retired = self.root.with_name(self.root.name + RETIRED_SUFFIX)
         if self.root.exists():

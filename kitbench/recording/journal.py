@@ -22,18 +22,14 @@ from typing import Any
 
 import numpy as np
 
+from kitbench.metadata import RecordingInfo
+from kitbench.recording.layout import SHARDS_DIR, journal_root
+
+__all__ = ["SETTINGS_FILE", "SHARDS_DIR", "EpisodeJournal", "journal_root"]
 from kitbench.recording.rollout import EpisodeRecord
 
-JOURNAL_SUFFIX = ".journal"
 SETTINGS_FILE = "recording.json"
-SHARDS_DIR = "shards"  # whole shards of a sharded recording (recording/shards.py), merged at its end
 _META = "__meta__"
-
-
-def journal_root(out: Path) -> Path:
-    """The journal folder of the dataset folder `out` (a sibling, so publishing `out` never touches it)."""
-    out = Path(out)
-    return out.with_name(out.name + JOURNAL_SUFFIX)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -62,16 +58,16 @@ class EpisodeJournal:
     def exists(self) -> bool:
         return self.root.is_dir()
 
-    def settings(self) -> dict | None:
+    def settings(self) -> RecordingInfo | None:
         """The settings of the recording the journal belongs to (None when there is no journal)."""
         path = self.root / SETTINGS_FILE
-        return json.loads(path.read_text()) if path.is_file() else None
+        return RecordingInfo.from_json(json.loads(path.read_text())) if path.is_file() else None
 
-    def start(self, settings: dict) -> None:
-        """Create the journal for a recording with `settings` (kept if it exists: a resumed recording)."""
+    def start(self, info: RecordingInfo) -> None:
+        """Create the journal for a recording with settings `info` (kept if it exists: a resumed recording)."""
         self.root.mkdir(parents=True, exist_ok=True)
         if not (self.root / SETTINGS_FILE).is_file():
-            _write_durably(self.root / SETTINGS_FILE, (json.dumps(settings, indent=2) + "\n").encode())
+            _write_durably(self.root / SETTINGS_FILE, (json.dumps(info.to_json(), indent=2) + "\n").encode())
             _fsync_dir(self.root.parent)
 
     def _path(self, seed: int, suffix: str) -> Path:

@@ -44,6 +44,8 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import register_schema
 from PIL import Image
 
+from kitbench.envs.modalities import TEXTURES, Texture
+
 WORLD = "world"
 JSON_TOPICS = {
     "/action": {"type": "object", "properties": {"action": {"type": "array", "items": {"type": "number"}}}},
@@ -112,12 +114,9 @@ class EpisodeMcap:
         proto: dict[str, type] = {"/tf": FrameTransforms, "/scene": SceneUpdate, "/joint_states": JointStates}
         for c in cameras:
             proto[f"/camera/{c}/calibration"] = CameraCalibration
-            if "rgb" in textures:
-                proto[f"/camera/{c}"] = CompressedImage
-            if "depth" in textures:
-                proto[f"/camera/{c}/depth"] = RawImage
-            if "segmentation" in textures:
-                proto[f"/camera/{c}/segmentation"] = CompressedImage
+            for texture in TEXTURES.values():
+                if texture.name in textures:
+                    proto[f"/camera/{c}{texture.mcap_topic}"] = RawImage if texture.mcap == "float" else CompressedImage
         if pointcloud:
             proto[POINTCLOUD_TOPIC] = PointCloud
         for topic, cls in proto.items():
@@ -126,7 +125,8 @@ class EpisodeMcap:
         for topic, schema_def in JSON_TOPICS.items():
             schema = self._writer.register_schema(topic.strip("/"), "jsonschema", json.dumps(schema_def).encode())
             self._channels[topic] = self._writer.register_channel(topic, "json", schema)
-        if segmentation_ids is not None and any(t.endswith("/segmentation") for t in proto):
+        labelled = any(t.mcap == "labels" and t.name in textures for t in TEXTURES.values())
+        if segmentation_ids is not None and cameras and labelled:
             topic = SEGMENTATION_IDS_TOPIC
             schema = self._writer.register_schema(
                 topic.strip("/"), "jsonschema", json.dumps({"type": "object"}).encode()
@@ -189,21 +189,28 @@ class EpisodeMcap:
             ids = {str(i): name for i, name in (self._segmentation_ids or {}).items()}
             self._write(SEGMENTATION_IDS_TOPIC, json.dumps(ids).encode(), t_ns)
         for camera, data in cameras.items():
-            if "rgb" in data:
-                self._write_image(f"/camera/{camera}", camera, stamp, t_ns, data["rgb"], "jpeg")
-            if "depth" in data:
-                depth = np.ascontiguousarray(data["depth"][..., 0], dtype="<f4")
-                height, width = depth.shape
-                msg = RawImage(
-                    timestamp=stamp, frame_id=camera, width=width, height=height, encoding="32FC1", step=4 * width
-                )
-                msg.data = depth.tobytes()
-                self._write(f"/camera/{camera}/depth", msg.SerializeToString(), t_ns)
-            if "segmentation" in data:
-                ids = np.minimum(data["segmentation"][..., 0], len(self._colors) - 1)
-                self._write_image(f"/camera/{camera}/segmentation", camera, stamp, t_ns, self._colors[ids], "png")
+            for texture in TEXTURES.values():
+                if texture.name in data:
+                    self._log_texture(texture, camera, stamp, t_ns, data[texture.name])
         if pointcloud is not None:
             self._write(POINTCLOUD_TOPIC, self._pointcloud(stamp, pointcloud).SerializeToString(), t_ns)
+
+    def _log_texture(self, texture: Texture, camera: str, stamp: Timestamp, t_ns: int, value: np.ndarray) -> None:
+        """One camera's texture as its class says it travels (`Texture.mcap`)."""
+        topic = f"/camera/{camera}{texture.mcap_topic}"
+        if texture.mcap == "jpeg":
+            self._write_image(topic, camera, stamp, t_ns, value, "jpeg")
+        elif texture.mcap == "labels":
+            ids = np.minimum(value[..., 0], len(self._colors) - 1)
+            self._write_image(topic, camera, stamp, t_ns, self._colors[ids], "png")
+        else:  # "float": one channel, 32-bit floats as they are
+            plane = np.ascontiguousarray(value[..., 0], dtype="<f4")
+            height, width = plane.shape
+            msg = RawImage(
+                timestamp=stamp, frame_id=camera, width=width, height=height, encoding="32FC1", step=4 * width
+            )
+            msg.data = plane.tobytes()
+            self._write(topic, msg.SerializeToString(), t_ns)
 
     def _write_image(self, topic: str, camera: str, stamp: Timestamp, t_ns: int, rgb: np.ndarray, fmt: str):
         """An RGB image as a CompressedImage: JPEG for camera pictures, PNG (lossless) for label colours."""

@@ -11,33 +11,46 @@ temporary folder beside `out` and renamed into place, so a failure leaves nothin
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench.config.declare import setting
 from kitbench.errors import KitbenchError
-from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episodes, write_episodes
 from kitbench.recording.card import write_card
-from kitbench.recording.config import RECORDED_BEFORE, check_repo_id
-from kitbench.recording.journal import journal_root
+from kitbench.recording.config import check_repo_id
+from kitbench.recording.layout import SESSION_SUFFIX, beside, journal_root
+from kitbench.recording.session import MCAP_DIR
 
-MCAP_DIR = "mcap"
 MERGING_SUFFIX = ".merging"
-# Settings a recording stores that may differ between shards: where it started, and how it was named.
-PER_SHARD = ("seed", "repo_id")
+# Settings a recording stores that may differ between shards: where it started.
+PER_SHARD = ("seed",)
+
+
+@dataclass
+class MergeSettings:
+    # The dataset folders of finished recordings with the same settings.
+    shards: tuple[Path, ...] = setting(positional=True)
+    # The merged dataset's folder (new, or replaced with --overwrite).
+    out: Path = setting(required=True)
+    # Replace an existing --out.
+    overwrite: bool = setting(False)
+    # The merged dataset's repo id (default: the shards').
+    repo_id: str | None = setting(None)
 
 
 @dataclass
 class Shard:
     root: Path
-    settings: dict
-    episodes: list[dict]
+    info: RecordingInfo
+    episodes: list[EpisodeInfo]
 
     @property
     def seeds(self) -> list[int]:
-        return [e["seed"] for e in self.episodes]
+        return [e.seed for e in self.episodes]
 
 
 def _read_shard(root: Path, finished: bool) -> Shard:
@@ -46,30 +59,23 @@ def _read_shard(root: Path, finished: bool) -> Shard:
     root = Path(root)
     if not root.is_dir():
         raise KitbenchError(f"shard {root} does not exist (give the folders of finished kitbench recordings)")
-    if finished and (journal_root(root).is_dir() or root.with_name(root.name + ".session").exists()):
+    if finished and (journal_root(root).is_dir() or beside(root, SESSION_SUFFIX).exists()):
         raise KitbenchError(f"shard {root} is an unfinished recording; finish it with kitbench record --resume")
-    settings_path = root / RECORDING_FILE
-    if not settings_path.is_file():
-        raise KitbenchError(f"shard {root} is not a kitbench recording ({RECORDING_FILE} missing)")
-    settings = json.loads(settings_path.read_text())
-    lines = (root / EPISODES_FILE).read_text().splitlines() if (root / EPISODES_FILE).is_file() else []
-    episodes = [json.loads(line) for line in lines if line.strip()]
+    info = RecordingInfo.require(root, f"shard {root}")
+    episodes = read_episodes(root)
     if not episodes:
         raise KitbenchError(f"shard {root} has no episodes")
-    return Shard(root, settings, episodes)
+    return Shard(root, info, episodes)
 
 
 def _check_shards(shards: list[Shard]) -> None:
     first = shards[0]
     for shard in shards[1:]:
-        keys = sorted((set(first.settings) | set(shard.settings)) - set(PER_SHARD))
-        for key in keys:
-            a, b = (s.settings.get(key, RECORDED_BEFORE.get(key)) for s in (first, shard))
-            if a != b:
-                raise KitbenchError(
-                    f"shards {first.root} and {shard.root} were recorded with different {key} ({a!r} and {b!r}); "
-                    "only the seed may differ"
-                )
+        for key, (a, b) in first.info.differences(shard.info, ignore=PER_SHARD).items():
+            raise KitbenchError(
+                f"shards {first.root} and {shard.root} were recorded with different {key} ({a!r} and {b!r}); "
+                "only the seed may differ"
+            )
     owner: dict[int, Path] = {}
     for shard in shards:
         for seed in shard.seeds:
@@ -128,16 +134,16 @@ def merge(
     shards = sorted((_read_shard(r, finished) for r in shard_roots), key=lambda s: min(s.seeds))
     _check_shards(shards)
     _check_out(out, shards, overwrite)
-    settings = dict(shards[0].settings)
-    repo_id = repo_id or settings.get("repo_id") or f"kitbench/{settings['task']}"
-    settings["repo_id"] = repo_id
+    first = shards[0].info
+    repo_id = repo_id or first.repo_id or f"kitbench/{first.task}"
+    info = dataclasses.replace(first, repo_id=repo_id)
     quiet_video_logs()
     staging = out.with_name(out.name + MERGING_SUFFIX)
     if staging.exists():
         shutil.rmtree(staging)  # what a killed merge left
     try:
         aggregate_datasets(
-            [s.settings.get("repo_id", repo_id) for s in shards],
+            [s.info.repo_id or repo_id for s in shards],
             repo_id,
             roots=[s.root for s in shards],
             aggr_root=staging,
@@ -145,14 +151,14 @@ def merge(
         episodes, offset = [], 0
         for shard in shards:
             for episode in shard.episodes:
-                index = episode["episode_index"]
+                index = episode.episode_index
                 log = shard.root / MCAP_DIR / f"episode_{index:06d}.mcap"
                 if log.is_file():
                     _link_or_copy(log, staging / MCAP_DIR / f"episode_{offset + index:06d}.mcap")
-                episodes.append({**episode, "episode_index": offset + index})
+                episodes.append(dataclasses.replace(episode, episode_index=offset + index))
             offset += len(shard.episodes)
-        (staging / EPISODES_FILE).write_text("".join(json.dumps(e) + "\n" for e in episodes))
-        (staging / RECORDING_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+        write_episodes(staging, episodes)
+        info.write(staging)
         write_card(staging)
         retired = out.with_name(out.name + ".retired")
         if out.exists():
@@ -162,4 +168,4 @@ def merge(
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return MergeSummary(out, len(shards), len(episodes), sum(e["length"] for e in episodes))
+    return MergeSummary(out, len(shards), len(episodes), sum(e.length for e in episodes))

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from kitbench.control.noise_units import NOISE_UNITS, noise_std
+from kitbench.envs.interface import KitbenchEnv
 from kitbench.errors import KitbenchError
 
 _STREAM = 0xDA27  # keeps the noise stream apart from the env's own use of the seed
@@ -37,9 +38,8 @@ class ActionNoise:
         self.rng = np.random.default_rng([seed, _STREAM])
 
     @classmethod
-    def for_env(cls, env, scale: float, seed: int) -> ActionNoise:
-        u = env.unwrapped
-        return cls(u.control_mode, scale, seed, u.action_space.low, u.action_space.high)
+    def for_env(cls, env: KitbenchEnv, scale: float, seed: int) -> ActionNoise:
+        return cls(env.control_mode, scale, seed, env.action_space.low, env.action_space.high)
 
     def perturb(self, action: np.ndarray) -> np.ndarray:
         noisy = action + self.rng.standard_normal(action.shape) * self.std

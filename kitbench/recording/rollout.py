@@ -1,22 +1,20 @@
-"""Run one episode with a policy and keep everything a dataset or a log needs, frame by frame.
+"""One recorded episode: the rollout loop (`kitbench.rollout`) with the hooks that keep what a dataset or a log
+needs, frame by frame.
 
-A frame holds the observation at step t, the action taken at t, and what that action led to (`next.*`).
-The whole episode stays in memory until it ends, so an interrupted run never leaves half an episode behind.
+A frame holds the observation at step t, the action taken at t, and what that action led to (`next.*`). The whole
+episode stays in memory until it ends, so an interrupted run never leaves half an episode behind.
 
-Two options make demonstrations for learning (`kitbench record --action-noise / --settle-steps`):
-- `action_noise`: until the first success, the robot executes the policy's action plus seeded noise
-  (`noise.ActionNoise`); the frame's `action` stays the policy's own, `executed_action` is what the robot got.
-  `noise_phases` confines the noise to the steps the policy plays in those phases (its `phase` after `act`).
-- `settle_steps`: the episode goes on this many steps after its first success (the task ends an episode at
-  success), so the data shows the policy holding or releasing a finished task instead of stopping mid-motion.
-
-`labeler` (`kitbench record --label expert`, DAgger): a second policy, reset on the same episode, is asked at every
-state the acting policy reaches; its answer is the frame's `action`, and `executed_action` what the acting policy
-did (plus any noise).
+The hooks (`run_episode` composes them): `Frames` (the dataset's frames), `McapLog` (the episode's MCAP log),
+`ExpertLabels` (DAgger, `kitbench record --label expert`: a second policy, reset on the same episode, is asked at
+every state the acting policy reaches; its answer is the frame's `action`), `Noise` (`--action-noise`: until the
+first success the robot executes the policy's action plus seeded noise, confined to `noise_phases` of the policy;
+`executed_action` is what the robot got) and the loop's `SettleAfterSuccess` (`--settle-steps`: the episode goes on
+this many steps after its first success, so the data shows the policy holding or releasing a finished task).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -24,12 +22,15 @@ from typing import BinaryIO
 import numpy as np
 
 from kitbench.envs.features import observation_frame
+from kitbench.envs.interface import KitbenchEnv, as_kitbench
 from kitbench.envs.modes import POINTCLOUD
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.geometry import matrix_to_quat
+from kitbench.policies.base import label_of, phase_of, tcp_target_of
 from kitbench.recording.mcap_log import EpisodeMcap
 from kitbench.recording.noise import ActionNoise
 from kitbench.recording.scene_geometry import Body, optical_frame, scene_bodies, scene_update
+from kitbench.rollout import Episode, Hook, OneEpisode, SettleAfterSuccess, Step, clipped, run
 
 
 @dataclass
@@ -48,58 +49,158 @@ class EpisodeRecord:
         return len(self.frames)
 
 
-def commanded_tcp_pose(u) -> np.ndarray:
+def commanded_tcp_pose(env: KitbenchEnv) -> np.ndarray:
     """The TCP pose the controller is driving to, base frame [x, y, z, qw, qx, qy, qz], in every mode."""
-    controller = u.controller
+    controller = env.controller
     target = controller.tcp_target
     if target is None:
         target = controller.kinematics.tcp_pose(controller.joint_target)
     return np.concatenate([target[:3, 3], matrix_to_quat(target[:3, :3])]).astype(np.float32)
 
 
-def _clipped(u, action) -> np.ndarray:
-    return np.clip(np.asarray(action, dtype=np.float32), u.action_space.low, u.action_space.high)
+def task_config(env: KitbenchEnv) -> dict:
+    return {"control_mode": env.control_mode, "obs_mode": env.obs_mode, **env.episode_config()}
 
 
-def task_config(u) -> dict:
-    return {"control_mode": u.control_mode, "obs_mode": u.obs_mode, **u.episode_config()}
+class Frames(Hook):
+    """The dataset's frames of the episode, into `record`. `labels()`: this step's label, when something other than
+    the acting policy labels the frames (None: the policy's own action)."""
+
+    def __init__(self, record: EpisodeRecord, points: int, labels: Callable[[], np.ndarray | None]):
+        self.record, self.points, self.labels = record, points, labels
+        self._frame: dict = {}
+
+    def on_reset(self, episode: Episode) -> None:
+        env = as_kitbench(episode.env)
+        self.record.task, self.record.config = env.task_description(), task_config(env)
+        self.sampler = PointSampler(self.points, episode.seed)
+
+    def before_act(self, episode: Episode) -> None:
+        self._frame = observation_frame(episode.env, episode.obs, self.sampler)
+
+    def after_step(self, episode: Episode, step: Step) -> None:
+        frame = self._frame
+        label = self.labels()
+        frame["action"] = step.action if label is None else label
+        frame["executed_action"] = step.executed
+        frame["commanded_ee_pose"] = commanded_tcp_pose(as_kitbench(episode.env))
+        frame["next.reward"] = np.array([step.reward], dtype=np.float32)
+        frame["next.done"] = np.array([step.terminated or step.truncated], dtype=bool)
+        frame["next.success"] = np.array([bool(step.info["success"])], dtype=bool)
+        self.record.frames.append(frame)
+
+    def on_end(self, episode: Episode) -> None:
+        self.record.first_success = episode.first_success
+        self.record.success = episode.success
+        self.record.physics_error = episode.info.get("physics_error")
 
 
-def _world_frames(u, bodies: list[Body], obs) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+class ExpertLabels(Hook):
+    """DAgger: `labeler` is asked first at every state (before the acting policy, the state untouched); its
+    answer labels the frame."""
+
+    def __init__(self, labeler):
+        self.labeler = labeler
+        self.label: np.ndarray | None = None
+
+    def on_reset(self, episode: Episode) -> None:
+        self.labeler.reset(episode.env, episode.seed, episode.obs, episode.info)
+
+    def before_act(self, episode: Episode) -> None:
+        self.label = clipped(episode.env, self.labeler.act(episode.obs))
+
+
+class Noise(Hook):
+    """Until the first success, the robot executes the action plus seeded noise (`recording.noise`), in the
+    policy's `phases` only when given. None once the task is done: settling shows the finished state held, which
+    LiftPegUpright's 2 mm height tolerance does not survive at 0.01 rad of joint noise (1 of 20 episodes stayed a
+    success)."""
+
+    def __init__(self, scale: float, phases: tuple[str, ...] | None, policy):
+        self.scale, self.phases, self.policy = scale, phases, policy
+
+    def on_reset(self, episode: Episode) -> None:
+        self.noise = ActionNoise.for_env(as_kitbench(episode.env), self.scale, episode.seed)
+
+    def executed(self, episode: Episode, action: np.ndarray) -> np.ndarray:
+        noisy = episode.first_success is None
+        if noisy and self.phases is not None:
+            noisy = phase_of(self.policy) in self.phases
+        return self.noise.perturb(action) if noisy else action
+
+
+def _world_frames(env: KitbenchEnv, bodies: list[Body], obs) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """World poses: the robot's links, the task's tracked frames (objects, goals), every body the scene
     geometry is attached to and each camera's optical frame. Static bodies (the table, a kit's seated shapes) are
     logged every step like the rest, so that any one `/tf` message places the whole scene: ~170 bytes for a
     LiftPegUpright episode's table."""
-    frames = {link.name: (link.entity_pose.p, link.entity_pose.q) for link in u.robot.articulation.links}
-    frames.update(u.tracked_frames())
+    frames = {link.name: (link.entity_pose.p, link.entity_pose.q) for link in env.robot.articulation.links}
+    frames.update(env.tracked_frames())
     for body in bodies:
         frames.setdefault(body.frame, body.pose())
-    for c in u.camera_names:
+    for c in env.camera_names:
         frames[c] = optical_frame(obs["sensor_param"][c]["extrinsic_cv"])
     return frames
 
 
-def _log_scene(log: EpisodeMcap, u, obs) -> list[Body]:
-    """At time 0: the geometry of the scene this episode built, and each camera's calibration."""
-    bodies = scene_bodies(u.scene)
-    log.log_scene(0, scene_update(bodies))
-    for spec in u.camera_specs():
-        if spec.name in u.camera_names:
-            log.log_calibration(0, spec.name, obs["sensor_param"][spec.name]["intrinsic_cv"], spec.width, spec.height)
-    return bodies
+class McapLog(Hook):
+    """The episode's MCAP log, into `target` (a path or a binary stream): the scene and the cameras' calibrations
+    at time 0, the state each step (and after the last), the executed action with the policy's phase and TCP
+    target, and each step's reward and success."""
 
+    def __init__(self, target: Path | BinaryIO, policy):
+        self.target, self.policy = target, policy
+        self.log: EpisodeMcap | None = None
 
-def _log_state(log: EpisodeMcap, u, t_ns: int, joint_names, bodies: list[Body], obs) -> None:
-    sensed = obs if isinstance(obs, dict) else {}  # state observations are a flat vector
-    log.log_state(
-        t_ns,
-        frames=_world_frames(u, bodies, obs),
-        joint_names=joint_names,
-        qpos=u.robot.qpos(),
-        qvel=u.robot.qvel(),
-        cameras=sensed.get("sensor_data", {}),
-        pointcloud=sensed.get("pointcloud"),
-    )
+    def on_reset(self, episode: Episode) -> None:
+        env = as_kitbench(episode.env)
+        pointcloud = env.obs_mode == POINTCLOUD  # its cameras' textures travel in the cloud, not as images
+        textures = frozenset() if pointcloud else env.camera_textures
+        ids = env.segmentation_id_map if "segmentation" in textures else None
+        self.env = env
+        self.log = EpisodeMcap(self.target, env.camera_names, textures, ids, pointcloud)
+        self.joint_names = [j.name for j in env.robot.articulation.active_joints]
+        self.dt_ns = round(1e9 * env.control_timestep)
+        self.bodies = scene_bodies(env.scene)
+        self.log.log_scene(0, scene_update(self.bodies))
+        for spec in env.camera_specs():
+            if spec.name in env.camera_names:
+                intrinsic = episode.obs["sensor_param"][spec.name]["intrinsic_cv"]
+                self.log.log_calibration(0, spec.name, intrinsic, spec.width, spec.height)
+
+    def _state(self, episode: Episode) -> None:
+        assert self.log is not None
+        sensed = episode.obs if isinstance(episode.obs, dict) else {}  # state observations are a flat vector
+        self.log.log_state(
+            episode.steps * self.dt_ns,
+            frames=_world_frames(self.env, self.bodies, episode.obs),
+            joint_names=self.joint_names,
+            qpos=self.env.robot.qpos(),
+            qvel=self.env.robot.qvel(),
+            cameras=sensed.get("sensor_data", {}),
+            pointcloud=sensed.get("pointcloud"),
+        )
+
+    def before_act(self, episode: Episode) -> None:
+        self._state(episode)
+
+    def on_action(self, episode: Episode, action: np.ndarray, executed: np.ndarray) -> None:
+        assert self.log is not None
+        phase = phase_of(self.policy) or "policy"
+        self.log.log_action(episode.steps * self.dt_ns, executed, phase, tcp_target_of(self.policy))
+
+    def after_step(self, episode: Episode, step: Step) -> None:
+        assert self.log is not None
+        self.log.log_outcome(episode.steps * self.dt_ns, step.reward, bool(step.info["success"]))
+
+    def on_end(self, episode: Episode) -> None:
+        self._state(episode)  # the state the last action led to (the dataset has no frame for it)
+        self.close()
+
+    def close(self) -> None:
+        if self.log is not None:
+            self.log.close()
+            self.log = None
 
 
 def run_episode(
@@ -112,72 +213,34 @@ def run_episode(
     noise_phases: tuple[str, ...] | None = None,
     points: int = DEFAULT_POINTS,
     labeler=None,
-    observer=None,
+    hooks: tuple[Hook, ...] = (),
 ) -> EpisodeRecord:
-    """Run `policy` on `seed` to the end, logging to `mcap` (a path or a binary stream) when given. `points`: the
+    """Run `policy` on `seed` to the end and keep its dataset frames, logging to `mcap` when given. `points`: the
     point cloud's size per frame (obs_mode pointcloud), drawn with the episode's seed; `labeler`: the policy whose
-    action at each state is stored as `action` (default: `policy`'s own); `observer`: told every step's outcome
-    (`observer.step(reward, terminated, truncated, info)`, as `kitbench eval` scores an episode it also stores)."""
-    u = env.unwrapped
-    obs, info = env.reset(seed=seed)
-    policy.reset(env, seed, obs, info)
-    if labeler is not None:
-        labeler.reset(env, seed, obs, info)
-    noise = ActionNoise.for_env(env, action_noise, seed) if action_noise > 0 else None
-    record = EpisodeRecord(seed=seed, task=u.task_description(), config=task_config(u))
-    log = None
-    if mcap is not None:
-        pointcloud = u.obs_mode == POINTCLOUD  # its cameras' textures travel in the cloud, not as images
-        textures = frozenset() if pointcloud else u.camera_textures
-        ids = u.segmentation_id_map if "segmentation" in textures else None
-        log = EpisodeMcap(mcap, u.camera_names, textures, ids, pointcloud)
-    sampler = PointSampler(points, seed)
-    joint_names = [j.name for j in u.robot.articulation.active_joints]
-    dt_ns = round(1e9 * u.control_timestep)
+    action at each state is stored as `action` (default: `policy`'s own, or its `label` when it labels itself, as a
+    conversion's replay does); `hooks`: more, after the recording's (a score, as `kitbench eval` keeps one)."""
+    env = as_kitbench(env)
+    record = EpisodeRecord(seed=seed, task="")
+    labels: ExpertLabels | None = None if labeler is None else ExpertLabels(labeler)
+
+    def label() -> np.ndarray | None:
+        if labels is not None:
+            return labels.label
+        own = label_of(policy)
+        return None if own is None else clipped(env, own)
+
+    chain: list[Hook] = [Frames(record, points, label)]
+    log = McapLog(mcap, policy) if mcap is not None else None
+    if log is not None:
+        chain.append(log)
+    if labels is not None:
+        chain.append(labels)
+    if action_noise > 0:
+        chain.append(Noise(action_noise, noise_phases, policy))
+    chain += [SettleAfterSuccess(settle_steps), *hooks]
     try:
-        bodies = _log_scene(log, u, obs) if log is not None else []
-        step = 0
-        while True:
-            frame = observation_frame(env, obs, sampler)
-            if log is not None:
-                _log_state(log, u, step * dt_ns, joint_names, bodies, obs)
-            label = None if labeler is None else _clipped(u, labeler.act(obs))  # asked first: the state is untouched
-            action = _clipped(u, policy.act(obs))
-            # no noise once the task is done: settling shows the finished state held, which LiftPegUpright's
-            # 2 mm height tolerance does not survive at 0.01 rad of joint noise (1 of 20 episodes stayed a success)
-            noisy = noise is not None and record.first_success is None
-            if noisy and noise_phases is not None:
-                noisy = getattr(policy, "phase", None) in noise_phases
-            executed = noise.perturb(action) if noisy and noise is not None else action
-            if log is not None:
-                phase = getattr(policy, "phase", None) or "policy"
-                log.log_action(step * dt_ns, executed, phase, getattr(policy, "tcp_target", None))
-            obs, reward, terminated, truncated, info = env.step(executed)
-            if observer is not None:
-                observer.step(reward, terminated, truncated, info)
-            if info["success"] and record.first_success is None:
-                record.first_success = step
-            if record.first_success is not None:
-                # the task ends an episode at its first success; settling ends it settle_steps later (or when
-                # time runs out), whatever the task's state by then
-                terminated = step - record.first_success >= settle_steps
-            frame["action"] = action if label is None else label
-            frame["executed_action"] = executed
-            frame["commanded_ee_pose"] = commanded_tcp_pose(u)
-            frame["next.reward"] = np.array([reward], dtype=np.float32)
-            frame["next.done"] = np.array([terminated or truncated], dtype=bool)
-            frame["next.success"] = np.array([bool(info["success"])], dtype=bool)
-            record.frames.append(frame)
-            if log is not None:
-                log.log_outcome((step + 1) * dt_ns, reward, bool(info["success"]))
-            step += 1
-            if terminated or truncated:
-                break
-        if log is not None:  # the state the last action led to (the dataset has no frame for it)
-            _log_state(log, u, step * dt_ns, joint_names, bodies, obs)
+        run([env], [seed], OneEpisode(policy), lambda _: chain)
     finally:
         if log is not None:
             log.close()
-    record.physics_error = info.get("physics_error")
-    record.success = record.first_success is not None
     return record

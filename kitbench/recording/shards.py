@@ -17,7 +17,6 @@ The dataset appears when every shard is in (merging takes seconds), not at commi
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import os
 import shutil
@@ -28,12 +27,18 @@ import time
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from kitbench.engine import RolloutEngine, Work, make_executor
+from kitbench.engine.executor import ClusterLost
+from kitbench.errors import KitbenchError
 from kitbench.recording.config import RecordConfig
 from kitbench.recording.journal import SHARDS_DIR, EpisodeJournal
 from kitbench.recording.stops import Stopped, StopSignals
 from kitbench.recording.summary import Summary, attempt_limit, folder_size
+
+if TYPE_CHECKING:
+    from kitbench.metadata import EpisodeInfo
 
 SHARD_PREFIX = "shard-"
 # A shard is one session: committed once, at its end (a commit costs a session clone and a finalize).
@@ -59,20 +64,20 @@ def _tar(folder: Path) -> bytes:
 
 
 class ShardWork(Work):
-    """Records the shard (first seed, seed count) with the recorder itself, in the worker's process."""
+    """Records the shard (first seed, seed count) on one writer in the worker's process (`record_episodes`)."""
 
-    def __init__(self, config: RecordConfig, record):
+    def __init__(self, config: RecordConfig):
         self.config = config
-        self.record = record  # the one-writer recorder (`recorder.record`; pickled by reference)
 
     def setup(self) -> None:
         """Nothing shared: each shard is a recording of its own (it builds its env, seconds a shard)."""
 
     def run(self, job: tuple[int, int]) -> ShardResult:
+        from kitbench.recording.one_writer import record_episodes
+
         first, count = job
         with tempfile.TemporaryDirectory(prefix="kitbench-shard-") as scratch:
-            shard = dataclasses.replace(
-                self.config,
+            shard = self.config.replace(
                 seed=first,
                 episodes=count,
                 out=Path(scratch) / "shard",
@@ -85,7 +90,7 @@ class ShardWork(Work):
                 shard_episodes=0,
                 commit_interval=SHARD_COMMIT_INTERVAL,
             )
-            summary = self.record(shard, progress=False, signals=False)  # the worker's signals are its pool's
+            summary = record_episodes(shard, progress=False, signals=False)  # the worker's signals are its pool's
             data = _tar(shard.out) if summary.stored else b""
         return ShardResult(
             first, count, summary.stored, summary.successes, summary.physics_errors, summary.frames, data
@@ -124,39 +129,40 @@ def _store_shard(journal: EpisodeJournal, result: ShardResult) -> Path:
     return final
 
 
-def _episodes(root: Path) -> list[dict]:
-    from kitbench.recording.dataset import DatasetWriter
+def _episodes(root: Path) -> list[EpisodeInfo]:
+    from kitbench.metadata import read_episodes
 
-    return DatasetWriter.committed_episodes(root)
+    return read_episodes(root)
 
 
-def record_sharded(config: RecordConfig, progress: bool, record) -> Summary:
-    """`record` with `config.shard_episodes` > 0 (validated by the caller), each shard recorded by `record`."""
+def record_sharded(config: RecordConfig, progress: bool) -> Summary:
+    """`record` with `config.executor.shard_episodes` > 0 (validated by the caller)."""
     from kitbench.recording.dataset import recover, remove_recording
 
     out = config.out
     journal = EpisodeJournal(out)
     done: list[Path] = []  # recordings to merge: the published dataset (a resumed one), then the shards
-    if not config.overwrite:
+    shard_episodes = config.executor.shard_episodes
+    if not config.output.overwrite:
         recover(out)
         done = ([out] if out.exists() else []) + journaled_shards(journal)
-    seeds = [e["seed"] for root in done for e in _episodes(root)]
+    seeds = [e.seed for root in done for e in _episodes(root)]
     summary = Summary(stored=len(seeds))
     started = time.monotonic()
     workers = ExitStack()
     engine = None
     if summary.stored < config.episodes:
-        shards = -(-(config.episodes - summary.stored) // config.shard_episodes)  # rounded up
-        executor = make_executor(config.executor_config, jobs=shards)
-        engine = workers.enter_context(RolloutEngine(executor, ShardWork(config, record)))
+        shards = -(-(config.episodes - summary.stored) // shard_episodes)  # rounded up
+        executor = make_executor(config.executor, jobs=shards)
+        engine = workers.enter_context(RolloutEngine(executor, ShardWork(config)))
     bar = None
     try:
-        if config.overwrite:
+        if config.output.overwrite:
             remove_recording(out)
-        journal.start({**config.identity(), "repo_id": config.dataset_repo_id})
+        journal.start(config.info())
         limit = attempt_limit(config)
         in_flight = {"jobs": 0, "seeds": 0}
-        last_seed = max(seeds, default=config.seed - 1)
+        last_seed = max(seeds, default=config.demo.seed - 1)
         if engine is not None and progress:
             from kitbench.progress import progress as progress_bar
 
@@ -169,9 +175,9 @@ def record_sharded(config: RecordConfig, progress: bool, record) -> Summary:
             return in_flight["jobs"] + (1 if missing() > 0 else 0)
 
         def blocks():
-            seed = max(last_seed + 1, config.seed)
+            seed = max(last_seed + 1, config.demo.seed)
             while True:
-                size = min(config.shard_episodes, missing())
+                size = min(shard_episodes, missing())
                 in_flight["jobs"] += 1
                 in_flight["seeds"] += size
                 yield seed, size
@@ -197,6 +203,8 @@ def record_sharded(config: RecordConfig, progress: bool, record) -> Summary:
             with stops.storing():
                 _publish(done, out)
         journal.remove()
+    except ClusterLost as exc:  # finished shards stay in the journal for --resume
+        raise KitbenchError(f"{exc}; every shard finished before is kept: continue with --resume") from None
     except KeyboardInterrupt as exc:  # finished shards stay in the journal for --resume
         summary.interrupted = True
         summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT

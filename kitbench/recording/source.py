@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import functools
-import json
 from pathlib import Path
 
 import numpy as np
 
-from kitbench.errors import KitbenchError
-from kitbench.metadata import EPISODES_FILE, RECORDING_FILE
+from kitbench.metadata import RecordingInfo, read_episodes
 
 
 class SourceRecording:
@@ -19,15 +17,12 @@ class SourceRecording:
 
     def __init__(self, root: Path):
         self.root = Path(root)
-        if not (self.root / RECORDING_FILE).is_file():
-            raise KitbenchError(f"{self.root} is not a kitbench recording ({RECORDING_FILE} missing)")
-        self.settings = json.loads((self.root / RECORDING_FILE).read_text())
-        lines = (self.root / EPISODES_FILE).read_text().splitlines() if (self.root / EPISODES_FILE).is_file() else []
-        self.episodes = [json.loads(line) for line in lines if line.strip()]
+        self.info = RecordingInfo.require(self.root)
+        self.episodes = read_episodes(self.root)
 
     @property
     def seeds(self) -> tuple[int, ...]:
-        return tuple(int(e["seed"]) for e in self.episodes)
+        return tuple(int(e.seed) for e in self.episodes)
 
     def episode(self, seed: int) -> dict:
         return self._frames[seed]
@@ -44,11 +39,11 @@ class SourceRecording:
         by_index = {int(e): g for e, g in frames.groupby("episode_index")}
         by_seed = {}
         for episode in self.episodes:
-            group = by_index[episode["episode_index"]]
-            by_seed[int(episode["seed"])] = {
+            group = by_index[episode.episode_index]
+            by_seed[int(episode.seed)] = {
                 "executed": np.stack(group["executed_action"].to_numpy()).astype(np.float32),
                 "action": np.stack(group["action"].to_numpy()).astype(np.float32),
                 "environment_state": np.stack(group["observation.environment_state"].to_numpy()),
-                "success": bool(episode["success"]),
+                "success": bool(episode.success),
             }
         return by_seed

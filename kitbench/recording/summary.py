@@ -11,7 +11,7 @@ ATTEMPTS_PER_EPISODE = 10  # default --max-attempts: this many attempts per epis
 
 def attempt_limit(config) -> int:
     """Episodes a recording attempts, stored or not, before it gives up (`max_attempts`, else 10 per episode)."""
-    return config.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
+    return config.demo.max_attempts or ATTEMPTS_PER_EPISODE * config.episodes
 
 
 def folder_size(path: Path) -> int:

@@ -17,7 +17,7 @@ class RecordWork(Work):
         self.config = config
         self._env: Any = None
         self._policy: Any = None
-        self._labeler: Any = None
+        self._labeler: Any = None  # DAgger's second policy, asked at every state
 
     def __getstate__(self) -> dict:
         return {"config": self.config}  # the settings travel, never a built env
@@ -34,31 +34,32 @@ class RecordWork(Work):
             from kitbench.recording.source import SourceRecording
 
             self._source = SourceRecording(self.config.source)
-            self._replay = make_replay(self._source, self.config.control_mode)
-            self._policy, self._labeler = self._replay.policy, self._replay.labeler
+            self._policy = make_replay(self._source, self.config.env.control_mode)  # it labels its own frames
             self._poses = pose_position_columns(self._env)
             return
-        self._policy = make_policy(self.config.policy)
-        self._labeler = make_policy(self.config.label) if self.config.label else None
+        self._policy = make_policy(self.config.policy.policy)
+        label = self.config.policy.label
+        self._labeler = make_policy(label) if label else None
 
     def run(self, job: int) -> tuple[EpisodeRecord, bytes | None]:
         """Seed → (episode, its MCAP log's bytes or None)."""
-        log = io.BytesIO() if self.config.mcap else None  # in memory: a killed worker leaves no file behind
+        log = io.BytesIO() if self.config.output.mcap else None  # in memory: a killed worker leaves no file behind
+        demo = self.config.demo
         episode = run_episode(
             self._env,
             self._policy,
             job,
             log,
-            action_noise=self.config.action_noise,
-            noise_phases=self.config.noise_phases,
-            settle_steps=self.config.settle_steps,
-            points=self.config.pointcloud_points,
+            action_noise=demo.action_noise,
+            noise_phases=demo.noise_phases,
+            settle_steps=demo.settle_steps,
+            points=self.config.env.pointcloud_points,
             labeler=self._labeler,
         )
         if self.config.source is not None:
             from kitbench.recording.convert import divergence
 
-            episode.rejected = divergence(self._source, episode, self._poses, self._replay.starts)
+            episode.rejected = divergence(self._source, episode, self._poses, self._policy.starts)
         return episode, None if log is None else log.getvalue()
 
     def close(self) -> None:

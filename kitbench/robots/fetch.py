@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from kitbench.robots.registry import register_robot
 from kitbench.robots.spec import RobotSpec
 from kitbench.sim.cameras import CameraSpec
 
@@ -118,4 +119,4 @@ FETCH = RobotSpec(
     decimate_visuals=True,
     table_clearance=0.35,  # the base's radius is 0.28 m; its bumper stays 7 cm from the table
 )
-SPECS = (FETCH,)
+register_robot(FETCH)

@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from kitbench.robots.assets import panda_mujoco_urdf, panda_urdf_path
+from kitbench.robots.registry import register_robot
 from kitbench.robots.spec import RobotSpec
 from kitbench.sim.cameras import CameraSpec
 
@@ -75,4 +76,4 @@ PANDA = RobotSpec(
     decimate_visuals=True,
 )
 PANDA_WRISTCAM = replace(PANDA, uid="panda_wristcam", cameras=(HAND_CAMERA,))
-SPECS = (PANDA, PANDA_WRISTCAM)
+register_robot(PANDA, PANDA_WRISTCAM)

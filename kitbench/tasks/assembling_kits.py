@@ -95,37 +95,20 @@ class AssemblingKitsEnv(TabletopEnv):
     supported_robots = ("panda_wristcam",)
     max_dense_reward = MAX_DENSE_REWARD
     default_qpos_noise = 0.02
-    # What a policy needs in the form it can use (docs/learnability.md): the shape as a one-hot code (its grasp,
-    # opening and symmetry are per shape; as one normalised integer a policy trained on 400 demonstrations
-    # never learned the grasp, 0% on its own training seeds), yaws as cos/sin with no wrap-around, the
-    # shape's and the goal's yaw also folded by the shape's symmetry (what the grasp and the insertion depend
-    # on), and the hand-to-shape and shape-to-goal vectors. The three relative yaws are what an end-effector
-    # delta action regulates: the hand's yaw, the hand's yaw over the shape's (folded by the gripper's own
-    # two-fold symmetry: the fingers close the same way at yaw and yaw + pi), and the turn still needed to the goal
-    # (folded by the shape's symmetry; [1, 0] once aligned). The two `*_fine` fields are the grasp's and the
-    # insertion's errors on the scale they are corrected at: tanh of the table-plane offset over 1 cm (hand to
-    # shape) and 3 mm (shape to goal), and of the signed turn to the goal over 2 degrees. Normalised by the
-    # dataset's spread (800 demonstrations: 5 and 11 cm in x and y), a millimetre off the goal is 0.02 and 0.01 of
-    # a unit in `obj_to_goal_pos` and 0.42 in `obj_to_goal_fine` (spread 0.77); the expert re-aims until the shape
-    # is within 0.5 mm and 0.75 degrees (planning/assembling_kits.py). Measured: 5 -> 11 of 200 seated, with
-    # 400 demonstrations (docs/learnability.md). LeRobot leaves `observation.environment_state` unnormalised
-    # unless a config maps "ENV"; the shipped ACT config does (61% -> 64.5% and 71% from 400 demonstrations in
-    # two runs, missed grasps 51 -> 37 and 20), so the goal is given by its table-plane position alone: its
-    # height is the kit's, the same in every episode, and a constant divided by the rounding noise of its std
-    # (7e-6) turns any noise on it into hundreds of standard deviations.
+    # What the expert's motion depends on, each in a form a policy can learn from (measured: docs/learnability.md).
     environment_state_keys = (
         "obj_pose",
-        "obj_yaw_sym",
+        "obj_yaw_sym",  # folded by the shape's symmetry, as the grasp and the insertion are
         "tcp_to_obj_pos",
-        "goal_xy",
-        "goal_yaw",
+        "goal_xy",  # not the goal's height: a constant, which normalising by its rounding-noise std would blow up
+        "goal_yaw",  # yaws as cos/sin: no wrap-around
         "goal_yaw_sym",
         "obj_to_goal_pos",
-        "shape_onehot",
-        "tcp_yaw",
-        "tcp_to_obj_yaw",
+        "shape_onehot",  # one-hot: the grasp, opening and symmetry are per shape
+        "tcp_yaw",  # this and the next two: the turns an end-effector delta action regulates
+        "tcp_to_obj_yaw",  # folded by two: the fingers close the same way at yaw and yaw + pi
         "obj_to_goal_yaw",
-        "tcp_to_obj_fine",
+        "tcp_to_obj_fine",  # the grasp's and the insertion's errors on the scale they are corrected at
         "obj_to_goal_fine",
     )
     success_criteria = ("pos_correct", "rot_correct", "in_slot")

@@ -12,10 +12,10 @@ from functools import lru_cache
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
-from kitbench.control.controllers import CONTROL_MODES
+from kitbench.config.declare import leaves
+from kitbench.env_settings import PolicyEnvSettings
 from kitbench.envs.features import ENVIRONMENT_STATE, IMAGES, STATE, action_feature, observation_features
-from kitbench.envs.pointcloud import DEFAULT_POINTS
-from kitbench.errors import KitbenchError, check_choice
+from kitbench.errors import check_choice
 from kitbench.perturbations import Perturbations
 from kitbench.registration import TASKS, make_env
 from lerobot_env_kitbench.env import OBS_TYPES, OBSERVATION, obs_mode_of, register_lerobot_envs
@@ -35,9 +35,13 @@ def _env_features(task: str, control_mode: str, robot: str | None, obs_mode: str
         env.close()
 
 
+# The task a config that names none runs (lerobot builds a default config for `--env.type=kitbench --help`).
+DEFAULT_TASK = "LiftPegUpright-v1"
+
+
 @EnvConfig.register_subclass("kitbench")
 @dataclass
-class KitbenchEnvConfig(EnvConfig):
+class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
     """A kitbench task (`--env.task`, e.g. LiftPegUpright-v1) with LeRobot's observation names.
 
     `obs_type` "state" gives `agent_pos` (observation.state) and `environment_state`
@@ -46,24 +50,18 @@ class KitbenchEnvConfig(EnvConfig):
     that mode holds, under the same names.
     `control_mode` must be the one the training dataset was recorded in.
 
-    The comment above each field is its `--help` text (draccus reads comments, not this docstring).
+    `task`, `robot`, `control_mode` and `pointcloud_points` are kitbench's own settings (`kitbench.env_settings`),
+    declared, documented and checked there once. The comment above each field is its `--help` text (draccus reads
+    comments, in this class and the ones it inherits from, not this docstring).
     """
 
-    # A kitbench task: LiftPegUpright-v1 or AssemblingKits-v1 (any task registered with kitbench).
-    task: str | None = "LiftPegUpright-v1"
     # Control steps per second (20: the tasks' control frequency).
     fps: int = 20
     # "state" (observation.state, observation.environment_state), "pixels_state" (adds the cameras' images), or
     # the obs mode the dataset was recorded in: rgbd, depth, segmentation, rgb+segmentation, ..., pointcloud.
     obs_type: str = "state"
-    # obs_type pointcloud: points per frame, as the dataset stores them (its recording's pointcloud_points).
-    pointcloud_points: int = DEFAULT_POINTS
     # The unit depth images were trained in: lerobot-train's --dataset.depth_output_unit ("mm", its default, or "m").
     depth_unit: str = "mm"
-    # Action space; must be the one the training dataset was recorded in (its meta/kitbench_recording.json).
-    control_mode: str = "pd_joint_delta_pos"
-    # The robot the policy was trained on (its dataset's meta/kitbench_recording.json); default: the task's first.
-    robot: str | None = None
     # Steps before an episode is cut off; default: the task's own step limit for the robot (Fetch: 170).
     episode_length: int | None = None
     # How the env renders for lerobot's evaluation videos.
@@ -77,13 +75,15 @@ class KitbenchEnvConfig(EnvConfig):
     features_map: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        check_choice("task", self.task, tuple(TASKS))
+        if self.task is None:
+            self.task = DEFAULT_TASK
+        PolicyEnvSettings.__post_init__(self)
+        for name, leaf in leaves(PolicyEnvSettings).items():
+            leaf.check(getattr(self, name))  # kitbench's own checks of its settings: one line each
+        self.check_robot()
         check_choice("obs_type", self.obs_type, OBS_TYPES)
-        check_choice("control_mode", self.control_mode, CONTROL_MODES)
         check_choice("depth_unit", self.depth_unit, ("mm", "m"))
         points = self.pointcloud_points
-        if isinstance(points, bool) or not isinstance(points, int) or points < 1:
-            raise KitbenchError(f"pointcloud_points must be a positive integer, got {points!r}")
         Perturbations(self.perturbations)  # refuses unknown names and levels out of range here, in one line
         register_lerobot_envs()  # tasks registered after this package was imported get their gym ids too
         obs_mode = "state" if self.obs_type == "state" else obs_mode_of(self.obs_type)

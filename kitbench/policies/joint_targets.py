@@ -10,13 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from kitbench.control.controllers import JOINT_DELTA_MODES, TARGET_DELTA_MODES, pose_to_ee_action
+from kitbench.envs.interface import as_kitbench
 from kitbench.geometry import matrix_to_axis_angle
 
 
 def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bool = True) -> np.ndarray:
     """The env's action that drives the arm to `arm_target` (joint positions) with the gripper at `gripper`,
     clipped to the action box unless `clip` is False (then it says how far outside the box the target lies)."""
-    u = env.unwrapped
+    u = as_kitbench(env)
     mode = u.control_mode
     controller = u.controller
     if mode == "pd_joint_pos":

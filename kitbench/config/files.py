@@ -1,5 +1,5 @@
-"""Checks shared by kitbench's settings files and flags (recording recipes, evaluation suites): TOML tables and
-seeds."""
+"""Settings files (recording recipes, evaluation suites): TOML, keys at top level or under one table, each key a
+declared setting."""
 
 from __future__ import annotations
 
@@ -8,17 +8,6 @@ from collections.abc import Collection
 from pathlib import Path
 
 from kitbench.errors import KitbenchError
-
-
-def is_seed(value) -> bool:
-    # gymnasium refuses negative seeds deep inside `reset`; bool is an int subclass but never meant as a seed
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-def check_seed(seed) -> None:
-    """Refuse a first seed gymnasium would refuse, before anything runs."""
-    if not is_seed(seed):
-        raise KitbenchError(f"seed must be a non-negative integer, got {seed!r}")
 
 
 def settings_table(data: dict, table: str, keys, where: str) -> dict:

@@ -1,0 +1,79 @@
+"""The settings that choose an env, declared once for the command line, recipes, suites and the LeRobot plugin
+(`kitbench.config`): which task on which robot, driven how (`TaskSettings`); how many points a point cloud keeps,
+the last thing a trained policy needs matched (`PolicyEnvSettings`, the plugin's); observed and rewarded how
+(`EnvSettings`). One chain of classes, so that draccus finds each inherited field's help (its comment) as it does
+for lerobot's own configs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from kitbench.config.checks import one_of, positive_int
+from kitbench.config.declare import setting
+from kitbench.control.controllers import CONTROL_MODES
+from kitbench.envs.modes import IMAGE_OBS_MODES, REWARD_MODES
+from kitbench.envs.pointcloud import DEFAULT_POINTS
+from kitbench.errors import KitbenchError
+from kitbench.registration import TASKS, canonical_task, task_entry
+
+# What a recording stores and a suite scores: the state alone, or what the cameras give (a point cloud included).
+OBS_MODES = ("state", *IMAGE_OBS_MODES)
+
+
+def _task(name: str, value: object) -> None:
+    if value is not None:
+        task_entry(value)  # type: ignore[arg-type]  # one line naming every registered task
+
+
+@dataclass
+class TaskSettings:
+    # A kitbench task: LiftPegUpright-v1 or AssemblingKits-v1 (any task registered with kitbench), or its gym id
+    # kitbench/<task>.
+    task: str | None = setting(None, check=_task)
+    # One of the task's robots (default: its first, e.g. panda; or fetch).
+    robot: str | None = setting(None)
+    # The action space: pd_joint_delta_pos, pd_joint_pos, pd_ee_delta_pose, ...; a trained policy must act in the
+    # one its training dataset was recorded in.
+    control_mode: str = setting("pd_joint_delta_pos", check=one_of(CONTROL_MODES))
+
+    def __post_init__(self) -> None:
+        # stored by its short name (a gym id `kitbench/<task>` is accepted), so settings compare whatever the spelling
+        if self.task is not None:
+            self.task = canonical_task(self.task)
+
+    @property
+    def task_id(self) -> str:
+        """The task (settings that name none are refused before anything runs)."""
+        if self.task is None:
+            raise KitbenchError("missing --task")
+        return self.task
+
+    @property
+    def robot_uid(self) -> str:
+        """The robot: the one asked for, else the task's default."""
+        return self.robot or task_entry(self.task_id).env_class.supported_robots[0]
+
+    def check_robot(self) -> None:
+        """The robot is one the task supports."""
+        if self.robot is None or self.task not in TASKS:
+            return
+        supported = TASKS[self.task].env_class.supported_robots
+        if self.robot not in supported:
+            raise KitbenchError(
+                f"robot {self.robot!r} is not supported by {self.task}; valid choices: {', '.join(supported)}"
+            )
+
+
+@dataclass
+class PolicyEnvSettings(TaskSettings):
+    # Points per frame with obs_mode pointcloud, sampled with the episode's seed (as a dataset stores them).
+    pointcloud_points: int = setting(DEFAULT_POINTS, check=positive_int)
+
+
+@dataclass
+class EnvSettings(PolicyEnvSettings):
+    # Observations: state; rgb, rgbd, depth, segmentation or '+'-joined textures (rgb+depth+segmentation); or
+    # pointcloud. A trained policy implies the mode its dataset was recorded in.
+    obs_mode: str = setting("state", check=one_of(OBS_MODES))
+    # The reward in next.reward and the reported returns: dense, normalized_dense, sparse or none.
+    reward_mode: str = setting("dense", check=one_of(REWARD_MODES))

@@ -1,0 +1,177 @@
+"""Recording on one writer (`record_episodes`): episodes run on the rollout engine (`kitbench.engine`: this process,
+a local process pool, or Ray actors) and reach the recording session (`session.RecordingSession`) in seed order, so a
+dataset depends only on its settings, not on where it was recorded. `kitbench record` without shards runs it, and so
+does each shard of a sharded recording, in its worker."""
+
+from __future__ import annotations
+
+import itertools
+import signal
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack
+
+from kitbench.engine import RolloutEngine, make_executor
+from kitbench.engine.executor import ClusterLost
+from kitbench.errors import KitbenchError
+from kitbench.metadata import EpisodeInfo
+from kitbench.recording.config import RecordConfig, make_recording_env
+from kitbench.recording.rollout import EpisodeRecord
+from kitbench.recording.session import RecordingSession, dataset_state
+from kitbench.recording.stops import Stopped, StopSignals
+from kitbench.recording.summary import Summary, attempt_limit, folder_size
+from kitbench.recording.work import RecordWork
+
+
+def _say(message: str) -> None:
+    print(f"kitbench record: {message}", file=sys.stderr, flush=True)
+
+
+def open_session(config: RecordConfig) -> RecordingSession:
+    """The recording's session, with the features, fps and robot read off the env (the one place they are
+    defined)."""
+    from kitbench.recording.features import dataset_features
+
+    env = make_recording_env(config)
+    try:
+        env.reset(seed=config.demo.seed)
+        features = dataset_features(env, config.env.pointcloud_points, config.output.rgb_storage)
+        fps, robot = env.control_freq, env.robot_uid
+    finally:
+        env.close()
+    info = config.info(fps=fps)
+    return RecordingSession(config.out, info, features, robot, config.output.commit_interval)
+
+
+def record_episodes(config: RecordConfig, progress: bool = True, signals: bool = True) -> Summary:
+    """Record on one writer (`config` already validated). Workers start before anything is written or replaced:
+    a run whose workers cannot start (a Ray cluster short of CPUs) leaves everything as it was."""
+    started = time.monotonic()  # the speed printed counts the workers' start-up, as a user waits for it
+    committed, journaled = dataset_state(config.out, config.output.overwrite)
+    with ExitStack() as workers:
+        engine = None
+        to_record = config.episodes - len(committed) - len(journaled)
+        if to_record > 0:
+            executor = make_executor(config.executor, jobs=to_record)
+            engine = workers.enter_context(RolloutEngine(executor, RecordWork(config)))
+        session = open_session(config)
+        session.start(overwrite=config.output.overwrite)
+        summary = Recording(config, session, committed, progress).run(engine, signals)
+    summary.seconds = time.monotonic() - started
+    summary.size_bytes = folder_size(config.out)
+    return summary
+
+
+class Recording:
+    """One writer's recording: what the journal held first, then new episodes from the engine, each stored as it
+    arrives and committed periodically."""
+
+    def __init__(self, config: RecordConfig, session: RecordingSession, committed: list[EpisodeInfo], progress: bool):
+        self.config, self.session, self.progress = config, session, progress
+        self.done_seeds = {e.seed for e in committed}
+        self.summary = Summary(stored=len(committed))
+        self.limit = attempt_limit(config)
+
+    def run(self, engine: RolloutEngine | None, signals: bool) -> Summary:
+        """`signals`: Ctrl-C, SIGTERM and SIGHUP commit what is stored and stop (off in a shard's worker, whose
+        signals are its pool's)."""
+        bar = None
+        try:
+            with StopSignals(enabled=signals) as stops:
+                replayed = self._republish(stops)
+                remaining = self.config.episodes - self.summary.stored
+                if remaining > 0 and engine is not None:
+                    if self.progress:
+                        from kitbench.progress import progress as progress_bar
+
+                        bar = progress_bar(remaining, f"record {self.config.task}")
+                    self._record_new(engine, stops, replayed, bar)
+                with stops.storing():
+                    self.session.commit()
+        except KeyboardInterrupt as exc:
+            self.session.commit()
+            self.summary.interrupted = True
+            self.summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT
+        except ClusterLost as exc:
+            self.session.abandon()
+            raise KitbenchError(f"{exc}; every episode finished before is kept: continue with --resume") from None
+        except BaseException:
+            self.session.abandon()  # the journal keeps every finished episode for --resume
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        if self.summary.stored >= self.config.episodes or (
+            self.config.source is not None and not self.summary.interrupted
+        ):
+            self.session.finish()  # a conversion is done when every source seed was tried, stored or not
+        return self.summary
+
+    def _republish(self, stops: StopSignals) -> list[int]:
+        """Episodes a killed run had finished but not committed, published first, in seed order, and committed at
+        once: a run killed again before its first commit would otherwise replay them all again, and kills coming
+        faster than the replay would stall the recording."""
+        replayed: list[int] = []
+        for seed in self.session.journaled():
+            if self.summary.stored >= self.config.episodes:
+                break
+            with stops.storing():
+                self.session.republish(seed)
+                replayed.append(seed)
+                self.summary.stored += 1
+        if replayed:
+            with stops.storing():
+                self.session.commit()
+        return replayed
+
+    def _seeds(self, replayed: list[int]) -> Iterator[int]:
+        """The seeds still to run: consecutive after the last stored, or a conversion's source seeds not yet
+        stored."""
+        done = {*self.done_seeds, *replayed}
+        if self.config.source is None:
+            last = max(done, default=self.config.demo.seed - 1)
+            return itertools.count(max(last + 1, self.config.demo.seed))
+        from kitbench.recording.source import SourceRecording
+
+        return iter([s for s in SourceRecording(self.config.source).seeds if s not in done])
+
+    def _record_new(self, engine: RolloutEngine, stops: StopSignals, replayed: list[int], bar) -> None:
+        summary = self.summary
+
+        def needed() -> int:  # in flight: never more episodes than are still needed or may still be attempted
+            return min(self.config.episodes - summary.stored, self.limit - summary.attempted)
+
+        for _, (episode, mcap) in engine.results(self._seeds(replayed), needed):
+            summary.attempted += 1
+            summary.successes += int(episode.success)
+            if self._keep(episode):
+                with stops.storing():
+                    self.session.store(episode, mcap)
+                    summary.stored += 1
+                    summary.frames += episode.length
+                if bar is not None:
+                    bar.update(1)
+                if self.session.commit_due():
+                    with stops.storing():  # a commit interrupted half-way would leave a session to discard
+                        self.session.commit()
+            if bar is not None:
+                bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
+            if summary.should_stop(self.config.episodes, self.limit):
+                break
+
+    def _keep(self, episode: EpisodeRecord) -> bool:
+        """Whether to store the episode: never one whose simulation failed or that diverged from its source, and
+        with only_success a success only."""
+        if episode.physics_error is not None:
+            self.summary.physics_errors += 1
+            _say(f"seed {episode.seed}: not stored, the simulation failed: {episode.physics_error}")
+            return False
+        if episode.rejected is not None:
+            self.summary.rejected += 1
+            _say(f"seed {episode.seed}: not stored, {episode.rejected}")
+            return False
+        if self.config.demo.only_success and not episode.success:
+            self.summary.failures_dropped += 1
+            return False
+        return True
