@@ -4,6 +4,12 @@
 kitbench version and this file's format); `meta/kitbench_episodes.jsonl` one line per episode (`EpisodeInfo`: seed,
 success, length, the task's episode configuration). Every reader goes through `RecordingInfo.read` and
 `read_episodes`, so a recording made by an older kitbench reads with what its missing settings meant then.
+
+LeRobot's own tools (`lerobot-edit-dataset`, `aggregate_datasets`) drop both files and every key of their own in
+`meta/info.json`, but copy each feature's entry whole and every data column. So the settings are also carried in
+the `episode_seed` feature's entry (`CARRIER`), and each episode's facts are read back from its columns
+(`episode_seed`, `next.success`), its task from LeRobot's episode index and its configuration from its seed
+(docs/recording.md, "After LeRobot's tools").
 """
 
 from __future__ import annotations
@@ -18,6 +24,11 @@ from kitbench.errors import KitbenchError
 
 RECORDING_FILE = "meta/kitbench_recording.json"
 EPISODES_FILE = "meta/kitbench_episodes.jsonl"
+INFO_FILE = "meta/info.json"  # LeRobot's
+# The per-frame feature whose entry in meta/info.json carries the recording's settings (under "info" -> "kitbench").
+CARRIER = "episode_seed"
+# Settings that are not carried: merged recordings differ in them (LeRobot's merge wants equal feature entries).
+NOT_CARRIED = ("seed",)
 # 1: files written before the format was numbered (they read the same); 2: numbered.
 FORMAT = 2
 # The settings a resumed recording must share with its first part (and shards with each other): episodes are
@@ -82,14 +93,32 @@ class RecordingInfo:
 
     @classmethod
     def read(cls, root: str | Path) -> RecordingInfo | None:
-        """The settings of the recording at `root`; None for a dataset kitbench did not record."""
+        """The settings of the recording at `root`: its settings file, else what its `CARRIER` feature carries
+        (after LeRobot's tools, the first seed read from the data); None for a dataset kitbench did not record."""
         path = Path(root) / RECORDING_FILE
         if not path.is_file():
-            return None
+            return cls._from_features(Path(root))
         try:
             return cls.from_json(json.loads(path.read_text()))
         except (OSError, ValueError, TypeError) as exc:
             raise KitbenchError(f"{path} is unreadable ({exc})") from None
+
+    @classmethod
+    def _from_features(cls, root: Path) -> RecordingInfo | None:
+        lerobot = lerobot_info(root)
+        carried = lerobot.get("features", {}).get(CARRIER, {}).get("info", {}).get("kitbench")
+        if not isinstance(carried, dict) or not (root / "meta" / "episodes").is_dir():
+            return None  # not kitbench's, or a LeRobot session never finalized (a killed first commit)
+        seeds = [e.seed for e in _episodes_from_data(root, [])]
+        try:
+            info = cls.from_json({**carried, "seed": min(seeds, default=0), "fps": lerobot.get("fps")})
+        except TypeError as exc:
+            raise KitbenchError(
+                f"{root / INFO_FILE}: the settings in feature {CARRIER} are unreadable ({exc})"
+            ) from None
+        if seeds != list(range(info.seed, info.seed + len(seeds))):
+            info.seeds = seeds
+        return info
 
     @classmethod
     def require(cls, root: str | Path, what: str = "") -> RecordingInfo:
@@ -111,6 +140,16 @@ class RecordingInfo:
         path = Path(root) / RECORDING_FILE
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps({**self.to_json(), "format": FORMAT}, indent=2) + "\n")
+
+    def carried(self) -> dict:
+        """The settings the `CARRIER` feature's entry holds: those every part of a merged recording shares."""
+        data = self.to_json()
+        return {"format": FORMAT, **{k: v for k, v in data.items() if k in IDENTITY and k not in NOT_CARRIED}}
+
+    def carry(self, features: dict) -> dict:
+        """`features` with this recording's settings in the `CARRIER` feature's entry."""
+        entry = features[CARRIER]
+        return {**features, CARRIER: {**entry, "info": {**entry.get("info", {}), "kitbench": self.carried()}}}
 
     # -- comparing -------------------------------------------------------------------------------
     def identity(self) -> dict:
@@ -150,11 +189,102 @@ class EpisodeInfo:
         return {**data, **self.config}
 
 
-def read_episodes(root: str | Path) -> list[EpisodeInfo]:
+def read_episode_file(root: str | Path) -> list[EpisodeInfo]:
+    """The lines of `EPISODES_FILE` as written (the writer's own view, before its commit)."""
     path = Path(root) / EPISODES_FILE
     if not path.is_file():
         return []
     return [EpisodeInfo.from_json(json.loads(line)) for line in path.read_text().splitlines() if line.strip()]
+
+
+def read_episodes(root: str | Path) -> list[EpisodeInfo]:
+    """The episodes of the recording at `root`, in episode order: `EPISODES_FILE` while it describes the dataset
+    (its tasks as LeRobot's index now names them), else each episode's facts read back from the dataset."""
+    root = Path(root)
+    lines = read_episode_file(root)
+    lerobot = lerobot_info(root)
+    total = lerobot.get("total_episodes")
+    if total is None or (len(lines) == total and [e.episode_index for e in lines] == list(range(total))):
+        tasks = _episode_tasks(root)
+        for episode in lines:
+            episode.task = tasks.get(episode.episode_index, episode.task)
+        return lines
+    episodes = _episodes_from_data(root, lines)
+    missing = [e for e in episodes if not e.config]
+    info = RecordingInfo.read(root) if missing else None
+    if info is not None:
+        for episode, config in zip(missing, _configs_of(info, [e.seed for e in missing]), strict=True):
+            episode.config = config
+    return episodes
+
+
+def _configs_of(info: RecordingInfo, seeds: list[int]) -> list[dict]:
+    """What each seed chose (`task_config`, as the recording wrote it), from the task itself: a reset per seed."""
+    from kitbench.registration import make_env
+
+    env = make_env(info.task, obs_mode="state", control_mode=info.control_mode, robot_uids=info.robot_uid)
+    try:
+        configs = []
+        for seed in seeds:
+            env.reset(seed=seed)
+            configs.append({"control_mode": info.control_mode, "obs_mode": info.obs_mode, **env.episode_config()})
+        return configs
+    finally:
+        env.close()
+
+
+def lerobot_info(root: Path) -> dict:
+    path = root / INFO_FILE
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise KitbenchError(f"{path} is unreadable ({exc})") from None
+
+
+def _episode_tasks(root: Path) -> dict[int, str]:
+    """Each episode's task as LeRobot's episode index (`meta/episodes/`) holds it."""
+    import pandas as pd
+
+    files = sorted((root / "meta" / "episodes").rglob("*.parquet"))
+    if not files:
+        return {}
+    table = pd.concat([pd.read_parquet(f, columns=["episode_index", "tasks"]) for f in files])
+    return {int(i): str(next(iter(t))) for i, t in zip(table["episode_index"], table["tasks"], strict=True) if len(t)}
+
+
+def _episodes_from_data(root: Path, known: list[EpisodeInfo]) -> list[EpisodeInfo]:
+    """Each episode's seed, success and length from its columns, its task from LeRobot's index; its configuration
+    from `known` (a stale episodes file) by seed, else from the task given that seed (`episode_config`)."""
+    import numpy as np
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    files = sorted((root / "data").rglob("*.parquet"))
+    if not files:
+        return []
+    wanted = ["episode_index", CARRIER, "next.success"]
+    columns = [c for c in wanted if c in pq.read_schema(files[0]).names]
+    if CARRIER not in columns:
+        raise KitbenchError(f"{root} has no {CARRIER} column: its episodes' seeds are lost")
+    frames = pd.concat([pd.read_parquet(f, columns=columns) for f in files])
+    tasks = _episode_tasks(root)
+    by_seed = {e.seed: e for e in known}
+    episodes = []
+    for index, group in frames.groupby("episode_index", sort=True):
+        seed = int(np.ravel(group[CARRIER].iloc[0])[0])  # (1,) features read back as scalars or arrays
+        old = by_seed.get(seed)
+        successes = [bool(np.ravel(v)[0]) for v in group["next.success"]] if "next.success" in columns else []
+        first = successes.index(True) if True in successes else None
+        if not successes and old is not None:
+            first = old.first_success
+        episodes.append(
+            EpisodeInfo(
+                int(index), seed, first is not None, len(group), first, tasks.get(int(index)), old.config if old else {}
+            )
+        )
+    return episodes
 
 
 def write_episodes(root: str | Path, episodes: list[EpisodeInfo]) -> None:
@@ -164,7 +294,12 @@ def write_episodes(root: str | Path, episodes: list[EpisodeInfo]) -> None:
 
 
 def is_recording(root: str | Path) -> bool:
-    return (Path(root) / RECORDING_FILE).is_file()
+    """Whether kitbench recorded the dataset at `root` (its settings file, or the settings its features carry)."""
+    root = Path(root)
+    if (root / RECORDING_FILE).is_file():
+        return True
+    carrier = lerobot_info(root).get("features", {}).get(CARRIER, {})
+    return isinstance(carrier.get("info", {}).get("kitbench"), dict)
 
 
 def read_recording_settings(root: str | Path) -> dict | None:

@@ -8,7 +8,7 @@ killed session left behind.
 
 Per-episode facts LeRobot has no place for (seed, success, task configuration) go to
 `meta/kitbench_episodes.jsonl` (`kitbench.metadata`), written with the same commit, and to the `episode_seed`
-column.
+column, whose feature entry carries the recording's settings through LeRobot's tools.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episodes, write_episodes
+from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episode_file, write_episodes
 from kitbench.recording.card import write_card
 from kitbench.recording.layout import RETIRED_SUFFIX, SESSION_SUFFIX
 
@@ -159,7 +159,7 @@ class DatasetWriter:
             self._session = LeRobotDataset.create(
                 self.repo_id,
                 fps=self.fps,
-                features=self.features,
+                features=self.info.carry(self.features),
                 root=session,
                 robot_type=self.robot_type,
                 use_videos=True,
@@ -197,7 +197,7 @@ class DatasetWriter:
         self._session.finalize()
         self._session = None
         session = self.session_root
-        write_episodes(session, read_episodes(session) + self._pending)
+        write_episodes(session, read_episode_file(session) + self._pending)
         self.info.write(session)
         write_card(session)
         retired = self.root.with_name(self.root.name + RETIRED_SUFFIX)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from kitbench.config.declare import setting
 from kitbench.errors import KitbenchError
-from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episodes, write_episodes
+from kitbench.metadata import CARRIER, EpisodeInfo, RecordingInfo, lerobot_info, read_episodes, write_episodes
 from kitbench.recording.card import write_card
 from kitbench.recording.config import check_repo_id
 from kitbench.recording.layout import SESSION_SUFFIX, beside, journal_root
@@ -68,6 +68,13 @@ def _read_shard(root: Path, finished: bool) -> Shard:
     return Shard(root, info, episodes)
 
 
+def _comparable(entry: dict | None) -> dict | None:
+    """A feature's entry as LeRobot's merge compares it: a video's encoder settings may differ."""
+    if entry is None or entry.get("dtype") != "video":
+        return entry
+    return {k: v for k, v in entry.items() if k != "info"}
+
+
 def _check_shards(shards: list[Shard]) -> None:
     first = shards[0]
     for shard in shards[1:]:
@@ -75,6 +82,18 @@ def _check_shards(shards: list[Shard]) -> None:
             raise KitbenchError(
                 f"shards {first.root} and {shard.root} were recorded with different {key} ({a!r} and {b!r}); "
                 "only the seed may differ"
+            )
+    features = lerobot_info(first.root).get("features", {})
+    for shard in shards[1:]:
+        theirs = lerobot_info(shard.root).get("features", {})
+        for name in sorted(set(features) | set(theirs)):
+            if name != CARRIER and _comparable(features.get(name)) != _comparable(theirs.get(name)):
+                raise KitbenchError(f"shards {first.root} and {shard.root} store feature {name} differently")
+        if features.get(CARRIER) != theirs.get(CARRIER):
+            older = shard.root if "info" not in theirs.get(CARRIER, {}) else first.root
+            raise KitbenchError(
+                f"shard {older} was recorded before kitbench carried its settings in its features; "
+                "merge it only with recordings made before"
             )
     owner: dict[int, Path] = {}
     for shard in shards:
@@ -110,9 +129,18 @@ class MergeSummary:
     shards: int
     episodes: int
     frames: int
+    without_logs: dict[Path, int] = dataclasses.field(default_factory=dict)  # shard -> episodes without MCAP logs
 
     def lines(self) -> list[str]:
-        return [f"dataset: {self.out}", f"merged {self.shards} shards: {self.episodes} episodes, {self.frames} frames"]
+        lost = [
+            f"no MCAP log for {n} episode(s) of {root} (LeRobot's dataset tools do not copy mcap/); merged without"
+            for root, n in self.without_logs.items()
+        ]
+        return [
+            f"dataset: {self.out}",
+            f"merged {self.shards} shards: {self.episodes} episodes, {self.frames} frames",
+            *lost,
+        ]
 
 
 def merge(
@@ -148,15 +176,19 @@ def merge(
             roots=[s.root for s in shards],
             aggr_root=staging,
         )
-        episodes, offset = [], 0
+        episodes, offset, without_logs = [], 0, {}
         for shard in shards:
             for episode in shard.episodes:
                 index = episode.episode_index
                 log = shard.root / MCAP_DIR / f"episode_{index:06d}.mcap"
                 if log.is_file():
                     _link_or_copy(log, staging / MCAP_DIR / f"episode_{offset + index:06d}.mcap")
+                else:
+                    without_logs[shard.root] = without_logs.get(shard.root, 0) + 1
                 episodes.append(dataclasses.replace(episode, episode_index=offset + index))
             offset += len(shard.episodes)
+        if len(without_logs) == len(shards):  # recorded without logs (--no-mcap): nothing was lost
+            without_logs = {}
         write_episodes(staging, episodes)
         info.write(staging)
         write_card(staging)
@@ -168,4 +200,4 @@ def merge(
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    return MergeSummary(out, len(shards), len(episodes), sum(e.length for e in episodes))
+    return MergeSummary(out, len(shards), len(episodes), sum(e.length for e in episodes), without_logs)

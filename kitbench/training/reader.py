@@ -31,7 +31,7 @@ from lerobot.datasets.depth_utils import MM_PER_METRE, dequantize_depth
 from lerobot.datasets.io_utils import UINT16_PIL_MODES
 from lerobot.datasets.video_utils import decode_video_frames
 
-from kitbench.metadata import RECORDING_FILE
+from kitbench.metadata import is_recording
 from kitbench.training.columns import Columns, UnsupportedColumn
 from kitbench.training.frames import FrameCache, Layout, cache_key, decode_jobs, open_or_build
 
@@ -47,7 +47,7 @@ def enabled() -> bool:
 
 
 def is_kitbench_recording(root: Path) -> bool:
-    return (Path(root) / RECORDING_FILE).is_file()
+    return is_recording(root)
 
 
 def install() -> None:
