@@ -176,7 +176,8 @@ def merge(
             roots=[s.root for s in shards],
             aggr_root=staging,
         )
-        episodes, offset, without_logs = [], 0, {}
+        episodes, offset = [], 0
+        without_logs: dict[Path, int] = {}
         for shard in shards:
             for episode in shard.episodes:
                 index = episode.episode_index
