@@ -69,7 +69,8 @@ def test_lerobot_env_speaks_lerobot_names(needs_vulkan):
 
     env = gym.make("gym_kitbench/LiftPegUpright-v1", obs_type="pixels_state")
     obs, info = env.reset(seed=0)
-    assert set(obs) == {"agent_pos", "environment_state", "pixels"}
+    params = {f"sensor_param.base_camera.{k}" for k in ("intrinsic_cv", "extrinsic_cv", "cam2world_gl")}
+    assert set(obs) == {"agent_pos", "environment_state", "pixels", *params}
     assert obs["pixels"]["base_camera"].shape == (128, 128, 3)
     _, _, _, _, info = env.step(env.action_space.sample())
     assert info["is_success"] is False

@@ -66,11 +66,16 @@ def test_each_mode_stores_its_features_under_lerobot_names():
         "segmentation": [f"observation.images.{c}_segmentation" for c in cams],
         "pointcloud": [f"observation.pointcloud.{k}" for k in ("xyz", "rgb", "segmentation")],
     }
+    # every texture mode keeps each camera's parameters; a point cloud, in the world frame, none
+    params = [
+        f"observation.sensor_param.{c}.{k}" for c in cams for k in ("intrinsic_cv", "extrinsic_cv", "cam2world_gl")
+    ]
     for mode in IMAGE_OBS_MODES:
         features = observation_features(env, mode, points=POINTS)
         extra = set(features) - {"observation.state", "observation.environment_state"}
         parts = ["pointcloud"] if mode == "pointcloud" else ["rgb", "depth"] if mode == "rgbd" else mode.split("+")
-        assert extra == {name for part in parts for name in expected[part]}, mode
+        expected_names = {name for part in parts for name in expected[part]}
+        assert extra == expected_names | (set() if mode == "pointcloud" else set(params)), mode
         # a trained policy's inputs name the mode that provides them
         assert obs_mode_for(features) == ("rgbd" if mode == "rgb+depth" else mode)
     features = observation_features(env, "rgb+depth+segmentation")
@@ -116,13 +121,15 @@ def test_stock_lerobot_loads_each_modality_as_the_env_gave_it(recordings, needs_
     assert len(observations) == len(ds)
     info = json.loads((root / "meta/info.json").read_text())["features"]
     sampler = PointSampler(POINTS, 3)
-    checked = {"depth": 0, "segmentation": 0, "pointcloud": 0}
+    checked = {"depth": 0, "segmentation": 0, "pointcloud": 0, "sensor_param": 0}
     for i, obs in enumerate(observations):
         frame = observation_frame(env, obs, sampler)
         if i % 7:  # every 7th frame is compared: decoding each is the slow part (the sampler still draws each)
             continue
         item = ds[i]
-        expected = as_loaded({k: v for k, v in frame.items() if "images." in k or "pointcloud." in k})
+        expected = as_loaded(
+            {k: v for k, v in frame.items() if k.split(".")[1] in ("images", "pointcloud", "sensor_param")}
+        )
         for name, value in expected.items():
             got = item[name].numpy()
             assert got.shape == value.shape, name
@@ -139,11 +146,14 @@ def test_stock_lerobot_loads_each_modality_as_the_env_gave_it(recordings, needs_
             elif name.startswith("observation.pointcloud."):
                 np.testing.assert_array_equal(got, value, err_msg=name)
                 checked["pointcloud"] += 1
+            elif name.startswith("observation.sensor_param."):
+                np.testing.assert_array_equal(got, value, err_msg=name)
+                checked["sensor_param"] += 1
     env.close()
     if mode == "pointcloud":
         assert checked["pointcloud"] > 0
     else:
-        assert checked["depth"] > 0 and checked["segmentation"] > 0
+        assert checked["depth"] > 0 and checked["segmentation"] > 0 and checked["sensor_param"] > 0
 
 
 @pytest.mark.parametrize(("task", "mode"), RECORDINGS, ids=[f"{t}-{m}" for t, m in RECORDINGS])

@@ -11,11 +11,17 @@ cameras, `<camera>_depth`, as its robots' depth streams):
   axis, 0 where the pixel sees nothing; stored quantised (`DEPTH_ENCODING`);
 - `observation.images.<camera>_segmentation`: segmentation, a lossless 16-bit PNG image (H, W, 1) uint16 of the
   env's stable ids (`segmentation_id_map`, kept in the feature's `info`).
+With any texture, the camera's parameters, every frame, under ManiSkill's names (`CAMERA_PARAMS`):
+- `observation.sensor_param.<camera>.intrinsic_cv` (9,), `.extrinsic_cv` (12,), `.cam2world_gl` (16,) float32: the
+  env's 3x3, 3x4 and 4x4 matrices row by row.
 obs_mode `pointcloud`: `observation.pointcloud.xyz` (N, 3) float32 metres, world frame, `.rgb` (N, 3) uint8 and
-`.segmentation` (N, 1) uint16, N points sampled per frame (`kitbench.envs.pointcloud`).
+`.segmentation` (N, 1) uint16, N points sampled per frame (`kitbench.envs.pointcloud`); no camera parameters, as
+its points are already in the world frame and do not say which camera saw them.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -25,8 +31,10 @@ from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.envs.tabletop import POSE_NAMES
 
 __all__ = [
+    "CAMERA_PARAMS",
     "DEPTH_ENCODING",
     "POSE_NAMES",
+    "SENSOR_PARAM",
     "action_feature",
     "action_names",
     "as_loaded",
@@ -40,6 +48,51 @@ __all__ = [
 # The prefix of the point cloud's features (a camera texture's name is `observation.images.<camera><suffix>`,
 # `kitbench.envs.modalities`).
 POINTCLOUD_PREFIX = "observation.pointcloud."
+# The prefix of a camera's parameters: `observation.sensor_param.<camera>.<name>`, `<camera>` as in its images.
+SENSOR_PARAM = "observation.sensor_param."
+
+
+@dataclass(frozen=True)
+class CameraParam:
+    """One of a camera's parameters as `TabletopEnv` reports it in `obs["sensor_param"][<camera>]`: a matrix, stored
+    flat, row by row. LeRobot 0.6.1 keeps a 2-D feature but cannot edit or merge a dataset that has one
+    (`lerobot-edit-dataset` delete_episodes and split, `aggregate_datasets`, and so `kitbench merge`, fail on it)."""
+
+    shape: tuple[int, int]  # the matrix's; `.reshape(shape)` gives it back
+    info: dict  # its conventions, kept in the feature's info (meta/info.json)
+    description: str  # what the dataset card says it holds
+
+    def feature(self) -> dict:
+        rows, cols = self.shape
+        return {
+            "dtype": "float32",
+            "shape": (rows * cols,),
+            "names": [f"r{r}c{c}" for r in range(rows) for c in range(cols)],
+            "info": {**self.info, "matrix": [rows, cols]},
+        }
+
+
+OPENCV_AXES = "OpenCV camera axes: x right, y down, z forward"
+# ManiSkill's three, every frame: a camera on the robot (AssemblingKits' hand camera) moves with the arm.
+CAMERA_PARAMS = {
+    "intrinsic_cv": CameraParam(
+        (3, 3),
+        {"unit": "pixel", "axes": "opencv"},
+        f"camera matrix K (3x3, row by row), pixels, {OPENCV_AXES}; pixel (column, row) is centred at "
+        "(column + 0.5, row + 0.5)",
+    ),
+    "extrinsic_cv": CameraParam(
+        (3, 4),
+        {"unit": "m", "transform": "world to camera", "axes": "opencv"},
+        f"world to camera [R | t] (3x4, row by row; x_camera = R x_world + t), metres, {OPENCV_AXES}",
+    ),
+    "cam2world_gl": CameraParam(
+        (4, 4),
+        {"unit": "m", "transform": "camera to world", "axes": "opengl"},
+        "camera to world pose (4x4, row by row), metres, OpenGL camera axes as SAPIEN's (x right, y up, z backward)",
+    ),
+}
+
 # LeRobot's depth quantiser (`DepthEncoderConfig`): 12-bit codes in a lossless HEVC stream. Linear over 0-8.19 m,
 # each code is 2 mm, so a stored depth is within 1 mm of the rendered one (LeRobot's default, logarithmic over
 # 0.01-10 m, rounds within 0.7 mm at 0.5 m and 1.7 mm at 7 m, and reads a pixel that sees nothing, 0, back as
@@ -103,6 +156,9 @@ def observation_features(env, obs_mode: str | None = None, points: int = DEFAULT
         for texture in TEXTURES.values():
             if texture.name in textures:
                 features[IMAGES + spec.name + texture.suffix] = texture.feature(spec.height, spec.width, ids)
+        if textures:
+            for name, param in CAMERA_PARAMS.items():
+                features[f"{SENSOR_PARAM}{spec.name}.{name}"] = param.feature()
     return features
 
 
@@ -124,6 +180,9 @@ def observation_frame(env, obs, sampler: PointSampler | None = None) -> dict[str
         for texture in TEXTURES.values():
             if texture.name in data:
                 frame[IMAGES + camera + texture.suffix] = data[texture.name]
+        params = obs["sensor_param"][camera]
+        for name in CAMERA_PARAMS:
+            frame[f"{SENSOR_PARAM}{camera}.{name}"] = params[name].reshape(-1)
     return frame
 
 
@@ -137,12 +196,13 @@ def modality(name: str) -> str | None:
 
 def obs_mode_for(features) -> str:
     """The obs mode whose observations hold the dataset features named in `features` (keys): `pointcloud` for a
-    point cloud, else the cameras' textures, rgb with depth spelled `rgbd`; `state` for none."""
+    point cloud, else the cameras' textures, rgb with depth spelled `rgbd`; `rgb` for camera parameters without a
+    texture (any camera mode has them); `state` for none."""
     found = {modality(name) for name in features} - {None}
     if POINTCLOUD in found:
         return POINTCLOUD
     if not found:
-        return "state"
+        return "rgb" if any(name.startswith(SENSOR_PARAM) for name in features) else "state"
     if found == {"rgb", "depth"}:
         return "rgbd"
     return "+".join(t for t in TEXTURES if t in found)
@@ -155,7 +215,7 @@ def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str,
     out = {}
     for name, value in frame.items():
         texture = texture_of(name, IMAGES)
-        if texture is None:  # vectors and point clouds
+        if texture is None:  # vectors, point clouds and camera parameters
             out[name] = value.astype(np.int64) if value.dtype.kind in "ui" else value
         else:
             out[name] = texture.loaded(value, depth_unit)

@@ -48,7 +48,10 @@ class Rgb(Texture):
 
 class Depth(Texture):
     name, suffix, mcap, mcap_topic = "depth", "_depth", "float", "/depth"
-    description = "depth along the viewing axis, metres (stored within 1 mm), 0 where the pixel sees nothing"
+    description = (
+        "depth along the viewing axis, stored in metres (within 1 mm; stock `LeRobotDataset` returns millimetres "
+        'unless `depth_output_unit="m"`), 0 where the pixel sees nothing'
+    )
 
     def feature(self, height: int, width: int, ids: dict) -> dict:
         return {

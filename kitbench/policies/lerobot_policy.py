@@ -1,9 +1,10 @@
 """Policies trained with `lerobot-train` (ACT, Diffusion, ...), run on kitbench envs.
 
-The checkpoint's own pre/post-processors normalise inputs and un-normalise actions; observations are fed under
-the dataset's feature names, in the layout stock `LeRobotDataset` gave them in training (`features.as_loaded`:
-depth in the training run's `depth_output_unit`, point clouds drawn with the episode's seed). A checkpoint whose
-inputs or action size do not match the env is refused with both lists.
+The checkpoint's own pre/post-processors normalise inputs and un-normalise actions; the observations its input
+features name (the cameras' parameters too) are fed under the dataset's feature names, in the layout stock
+`LeRobotDataset` gave them in training (`features.as_loaded`: depth in the training run's `depth_output_unit`, point
+clouds drawn with the episode's seed). A checkpoint whose inputs or action size do not match the env is refused with
+both lists.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import os
 import shlex
 from pathlib import Path
 
-from kitbench.envs.features import ENVIRONMENT_STATE, POINTCLOUD_PREFIX, STATE, modality
+from kitbench.envs.features import CAMERA_PARAMS, ENVIRONMENT_STATE, POINTCLOUD_PREFIX, SENSOR_PARAM, STATE, modality
 from kitbench.envs.modalities import texture_of
 from kitbench.metadata import EPISODES_FILE, IDENTITY, RECORDING_FILE, RecordingInfo, read_episodes
 
@@ -42,8 +42,31 @@ def _describe(name: str) -> str:
         return UNITS[name]
     if name.startswith(POINTCLOUD_PREFIX):
         return POINTCLOUD_PARTS.get(name[len(POINTCLOUD_PREFIX) :], "")
+    if name.startswith(SENSOR_PARAM):
+        param = CAMERA_PARAMS.get(name.rsplit(".", 1)[-1])
+        return "" if param is None else param.description
     texture = texture_of(name)
     return "" if texture is None else texture.description
+
+
+def camera_notes(features: dict) -> list[str]:
+    """The card's lines on the cameras' parameters: where they are and, with depth, how a pixel makes a world point
+    (none for a dataset without them)."""
+    if not any(name.startswith(SENSOR_PARAM) for name in features):
+        return []
+    note = (
+        f"- Cameras: `{SENSOR_PARAM}<camera>.*` hold each camera's parameters in every frame, under ManiSkill's names "
+        "and conventions (a camera on the robot moves with it), each matrix stored row by row: `.reshape(3, 3)`, "
+        "`(3, 4)`, `(4, 4)` give them back (`info.matrix` in meta/info.json)."
+    )
+    if any(modality(name) == "depth" for name in features):
+        note += (
+            " A pixel (column, row) of `observation.images.<camera>_depth` with depth d (metres along the viewing "
+            "axis, 0: nothing seen; stored in metres, returned by stock `LeRobotDataset` in millimetres unless "
+            '`depth_output_unit="m"`) is the world point `cam2world_gl @ [d (u - cx) / fx, -d (v - cy) / fy, -d, 1]`, '
+            "u = column + 0.5, v = row + 0.5, fx, fy, cx, cy from `intrinsic_cv`."
+        )
+    return [note]
 
 
 # An entry of `observation.state` or `observation.environment_state` whose standard deviation over the whole
@@ -169,6 +192,7 @@ def card_text(root: Path) -> str:
             f"- Made by: {how}",
             f"- Made again by: `{record_command(recording, len(episodes))}`",
             *held,
+            *camera_notes(features),
             f"- {files}",
             "",
             *table,

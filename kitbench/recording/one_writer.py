@@ -11,11 +11,12 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack
+from pathlib import Path
 
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.engine.executor import ClusterLost
 from kitbench.errors import KitbenchError
-from kitbench.metadata import EpisodeInfo
+from kitbench.metadata import EpisodeInfo, lerobot_info
 from kitbench.recording.config import RecordConfig, make_recording_env
 from kitbench.recording.rollout import EpisodeRecord
 from kitbench.recording.session import RecordingSession, dataset_state
@@ -40,8 +41,19 @@ def open_session(config: RecordConfig) -> RecordingSession:
         fps, robot = env.control_freq, env.robot_uid
     finally:
         env.close()
+    if not config.output.overwrite:
+        features = started_with(config.out, features)
     info = config.info(fps=fps)
     return RecordingSession(config.out, info, features, robot, config.output.commit_interval)
+
+
+def started_with(out: Path, features: dict) -> dict:
+    """The features a resumed dataset at `out` was started with: one recorded before the cameras' parameters were
+    stored goes on without them (all of `features` for a new dataset)."""
+    stored = lerobot_info(out).get("features")
+    if stored is None:
+        return features
+    return {name: feature for name, feature in features.items() if name in stored}
 
 
 def record_episodes(config: RecordConfig, progress: bool = True, signals: bool = True) -> Summary:

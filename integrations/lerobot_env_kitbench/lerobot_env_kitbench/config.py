@@ -45,9 +45,9 @@ class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
     """A kitbench task (`--env.task`, e.g. LiftPegUpright-v1) with LeRobot's observation names.
 
     `obs_type` "state" gives `agent_pos` (observation.state) and `environment_state`
-    (observation.environment_state); "pixels_state" adds each camera's image (observation.images.<camera>); any
-    kitbench camera obs mode (rgbd, depth, segmentation, '+'-joined) or pointcloud adds what a dataset recorded in
-    that mode holds, under the same names.
+    (observation.environment_state); "pixels_state" adds each camera's image (observation.images.<camera>) and
+    parameters (observation.sensor_param.<camera>.*); any kitbench camera obs mode (rgbd, depth, segmentation,
+    '+'-joined) or pointcloud adds what a dataset recorded in that mode holds, under the same names.
     `control_mode` must be the one the training dataset was recorded in.
 
     `task`, `robot`, `control_mode` and `pointcloud_points` are kitbench's own settings (`kitbench.env_settings`),

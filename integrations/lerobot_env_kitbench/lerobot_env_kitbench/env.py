@@ -4,9 +4,10 @@ lerobot's eval loop reads observations named `agent_pos`, `environment_state` an
 uint8}) and success from `info["is_success"]`; it maps them to the dataset names kitbench's recorder writes
 (`observation.state`, `observation.environment_state`, `observation.images.<camera>`), so a policy trained on
 a kitbench dataset is evaluated on the same features. Every other observation a dataset stores (depth,
-segmentation, a point cloud) travels under its dataset name less `observation.` (`images.<camera>_depth`,
-`pointcloud.xyz`, ...), which lerobot passes on as `observation.<key>`, already in the layout `LeRobotDataset`
-returns (channels first, depth in `depth_unit`), since lerobot converts only `pixels`.
+segmentation, a point cloud, the cameras' parameters) travels under its dataset name less `observation.`
+(`images.<camera>_depth`, `pointcloud.xyz`, `sensor_param.<camera>.intrinsic_cv`, ...), which lerobot passes on as
+`observation.<key>`, already in the layout `LeRobotDataset` returns (channels first, depth in `depth_unit`), since
+lerobot converts only `pixels`; a policy reads those its input features name.
 """
 
 from __future__ import annotations
