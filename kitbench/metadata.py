@@ -104,12 +104,14 @@ class RecordingInfo:
             raise KitbenchError(f"{path} is unreadable ({exc})") from None
 
     @classmethod
-    def _from_features(cls, root: Path) -> RecordingInfo | None:
+    def _from_features(cls, root: Path, seeds: list[int] | None = None) -> RecordingInfo | None:
+        """`seeds`: the episodes' seeds when the caller has read them already."""
         lerobot = lerobot_info(root)
-        carried = lerobot.get("features", {}).get(CARRIER, {}).get("info", {}).get("kitbench")
-        if not isinstance(carried, dict) or not (root / "meta" / "episodes").is_dir():
+        carried = _carried(lerobot)
+        if carried is None or not (root / "meta" / "episodes").is_dir():
             return None  # not kitbench's, or a LeRobot session never finalized (a killed first commit)
-        seeds = [e.seed for e in _episodes_from_data(root, [])]
+        if seeds is None:
+            seeds = [e.seed for e in _episodes_from_data(root, [])]
         try:
             info = cls.from_json({**carried, "seed": min(seeds, default=0), "fps": lerobot.get("fps")})
         except TypeError as exc:
@@ -211,7 +213,9 @@ def read_episodes(root: str | Path) -> list[EpisodeInfo]:
         return lines
     episodes = _episodes_from_data(root, lines)
     missing = [e for e in episodes if not e.config]
-    info = RecordingInfo.read(root) if missing else None
+    info = None
+    if missing:  # the settings file is gone or stale with the episodes file: the seeds are read already
+        info = RecordingInfo._from_features(root, [e.seed for e in episodes]) or RecordingInfo.read(root)
     if info is not None:
         for episode, config in zip(missing, _configs_of(info, [e.seed for e in missing]), strict=True):
             episode.config = config
@@ -298,8 +302,13 @@ def is_recording(root: str | Path) -> bool:
     root = Path(root)
     if (root / RECORDING_FILE).is_file():
         return True
-    carrier = lerobot_info(root).get("features", {}).get(CARRIER, {})
-    return isinstance(carrier.get("info", {}).get("kitbench"), dict)
+    return _carried(lerobot_info(root)) is not None
+
+
+def _carried(lerobot: dict) -> dict | None:
+    """The recording's settings the `CARRIER` feature's entry in LeRobot's info carries; None without them."""
+    carried = lerobot.get("features", {}).get(CARRIER, {}).get("info", {}).get("kitbench")
+    return carried if isinstance(carried, dict) else None
 
 
 def read_recording_settings(root: str | Path) -> dict | None:
