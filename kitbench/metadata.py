@@ -97,14 +97,14 @@ class RecordingInfo:
         (after LeRobot's tools, the first seed read from the data); None for a dataset kitbench did not record."""
         path = Path(root) / RECORDING_FILE
         if not path.is_file():
-            return cls._from_features(Path(root))
+            return cls.from_features(Path(root))
         try:
             return cls.from_json(json.loads(path.read_text()))
         except (OSError, ValueError, TypeError) as exc:
             raise KitbenchError(f"{path} is unreadable ({exc})") from None
 
     @classmethod
-    def _from_features(cls, root: Path, seeds: list[int] | None = None) -> RecordingInfo | None:
+    def from_features(cls, root: Path, seeds: list[int] | None = None) -> RecordingInfo | None:
         """`seeds`: the episodes' seeds when the caller has read them already."""
         lerobot = lerobot_info(root)
         carried = _carried(lerobot)
@@ -215,7 +215,7 @@ def read_episodes(root: str | Path) -> list[EpisodeInfo]:
     missing = [e for e in episodes if not e.config]
     info = None
     if missing:  # the settings file is gone or stale with the episodes file: the seeds are read already
-        info = RecordingInfo._from_features(root, [e.seed for e in episodes]) or RecordingInfo.read(root)
+        info = RecordingInfo.from_features(root, [e.seed for e in episodes]) or RecordingInfo.read(root)
     if info is not None:
         for episode, config in zip(missing, _configs_of(info, [e.seed for e in missing]), strict=True):
             episode.config = config

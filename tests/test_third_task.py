@@ -214,7 +214,17 @@ def test_lerobot_plugin_serves_the_task():
 
     config = KitbenchEnvConfig(task=TASK, obs_type="pixels_state", control_mode="pd_joint_pos")
     shapes = {k: tuple(v.shape) for k, v in config.features.items()}
-    assert shapes == {"action": (8,), "agent_pos": (8,), "environment_state": (10,), "pixels/base_camera": (48, 64, 3)}
+    params = {
+        f"sensor_param.base_camera.{name}": (n,)
+        for name, n in [("intrinsic_cv", 9), ("extrinsic_cv", 12), ("cam2world_gl", 16)]
+    }
+    assert shapes == {
+        "action": (8,),
+        "agent_pos": (8,),
+        "environment_state": (10,),
+        "pixels/base_camera": (48, 64, 3),
+        **params,
+    }
     assert config.features_map["pixels/base_camera"] == "observation.images.base_camera"
 
     envs = make_env(KitbenchEnvConfig(task=TASK, control_mode="pd_joint_pos"), n_envs=2)["kitbench"][0]

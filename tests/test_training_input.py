@@ -202,7 +202,10 @@ def test_stock_reader_serves_other_datasets_and_when_switched_off(recordings, ne
 
     plain = tmp_path / "plain"
     shutil.copytree(recordings["video"].out, plain)
-    (plain / "meta/kitbench_recording.json").unlink()  # not a kitbench recording any more
+    (plain / "meta/kitbench_recording.json").unlink()  # not a kitbench recording any more: no settings file ...
+    info = json.loads((plain / "meta/info.json").read_text())
+    del info["features"]["episode_seed"]["info"]  # ... and no settings carried in the features
+    (plain / "meta/info.json").write_text(json.dumps(info))
     _, fast = _datasets(plain, return_uint8=True)
     fast[0]
     assert fast.reader.fast is None

@@ -47,8 +47,15 @@ def _load() -> None:
 
 
 def spellings() -> list[str]:
+    """Kitbench's own sources in `BUILTIN_MODULES` order (not import order), then any others as registered."""
     _load()
-    return [source.spelling for source in SOURCES.values()]
+    builtin = [f"kitbench.policies.{module}" for module in BUILTIN_MODULES]
+
+    def rank(source: PolicySource) -> int:
+        module = source.make.__module__
+        return builtin.index(module) if module in builtin else len(builtin)
+
+    return [source.spelling for source in sorted(SOURCES.values(), key=rank)]
 
 
 def make_policy(spec: str, device: str = "cpu", options: dict | None = None):
