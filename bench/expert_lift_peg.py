@@ -1,6 +1,6 @@
 """Benchmark the LiftPegUpright-v1 expert.
 
-    python bench/expert_lift_peg.py [--robot panda|fetch] [--seeds N] [--first S] [--workers K] [--control-mode M]
+    python bench/expert_lift_peg.py [--robot panda|fetch|so101] [--seeds N] [--first S] [--workers K] [--control-mode M]
                                     [--max-steps T]
 
 Runs seeds S..S+N-1 (default settings, `pd_joint_pos` unless told, the task's 50-step limit unless `--max-steps`
@@ -114,7 +114,9 @@ def report(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", default="panda", choices=("panda", "fetch"), help="whose expert (default panda)")
+    parser.add_argument(
+        "--robot", default="panda", choices=("panda", "fetch", "so101"), help="whose expert (default panda)"
+    )
     parser.add_argument("--seeds", type=int, default=500, help="run N seeds")
     parser.add_argument("--first", type=int, default=0, help="the first seed (default 0)")
     parser.add_argument("--max-steps", type=int, default=TASK_STEPS, help="episode step limit (default the task's 50)")

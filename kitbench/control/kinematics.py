@@ -64,7 +64,12 @@ class ArmKinematics:
         self.set_body(spec.body_ready)
         self._offset = pose_to_matrix(*spec.tcp_offset)
         self._offset_inv = np.linalg.inv(self._offset)
-        self.tcp_task = mink.FrameTask(spec.tcp_link, "body", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3)
+        self.tcp_task = mink.FrameTask(
+            spec.tcp_link, "body", position_cost=1.0, orientation_cost=spec.orientation_cost, lm_damping=1e-3
+        )
+        # the stall test weighs the orientation error as the task does, relative to the default weight (0.5): a
+        # five-joint arm's unreachable part of an orientation must not hide progress on the position
+        self._rot_weight = spec.orientation_cost / 0.5
         self.posture_task = mink.PostureTask(self.model, cost=posture_cost)
         q_ref = self._q.copy()
         q_ref[self._arm_adr] = spec.ready_arm_qpos
@@ -109,9 +114,10 @@ class ArmKinematics:
             if pos_err < pos_tol and rot_err < rot_tol:
                 converged = True
                 break
-            if pos_err + rot_err > 0.9 * previous:  # stalled (a limit or the posture term): more is wasted
+            error = pos_err + self._rot_weight * rot_err
+            if error > 0.9 * previous:  # stalled (a limit or the posture term): more is wasted
                 break
-            previous = pos_err + rot_err
+            previous = error
             velocity = mink.solve_ik(
                 self.configuration,
                 tasks,

@@ -223,18 +223,14 @@ def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str,
 
 
 def action_names(env) -> list[str]:
-    """One name per action entry: the arm part of the env's control mode, the gripper, then the robot's body
-    joint deltas and base velocities (`kitbench.robots.spec`)."""
+    """One name per action entry: the arm part of the env's control mode (joint modes: the joints, or
+    `delta_<joint>`), the gripper, then the robot's body joint deltas and base velocities (`kitbench.robots.spec`),
+    as the robot's units name them (the SO-101: `shoulder_pan.pos`, ..., `gripper.pos`)."""
     u = env.unwrapped
     spec = u.robot_spec
     mode = u.control_mode
-    if mode in EE_ACTION_NAMES:
-        arm = EE_ACTION_NAMES[mode]
-    elif mode == "pd_joint_pos":
-        arm = list(spec.arm_joints)
-    else:  # joint delta modes
-        arm = [f"delta_{j}" for j in spec.arm_joints]
-    return [*arm, "gripper", *spec.extra_action_names]
+    arm = EE_ACTION_NAMES[mode] if mode in EE_ACTION_NAMES else spec.units.joint_action_names(spec, mode)
+    return [*arm, spec.units.gripper_action_name(spec), *spec.extra_action_names]
 
 
 def action_feature(env) -> dict:

@@ -111,6 +111,14 @@ class KitbenchEnv(gym.Wrapper):
     def controller(self) -> Controller:
         return self._core.controller
 
+    def action_to_sim(self, action: np.ndarray) -> np.ndarray:
+        """An action in the robot's units (the action space's) to the simulation's (radians, gripper -1..1)."""
+        return self._core.action_to_sim(action)
+
+    def action_from_sim(self, action: np.ndarray) -> np.ndarray:
+        """An action in the simulation's units to the robot's (the action space's)."""
+        return self._core.action_from_sim(action)
+
     # -- cameras ---------------------------------------------------------------------------------
     @property
     def camera_names(self) -> tuple[str, ...]:

@@ -403,17 +403,35 @@ class TabletopEnv(gym.Env, abc.ABC):
         return np.clip(arm_joint_limits(self._robot_spec), -2 * np.pi, 2 * np.pi)
 
     def _action_space(self) -> spaces.Box:
-        """The controller's arm part and gripper, then the robot's body joint deltas and base velocities."""
+        """The controller's arm part and gripper, then the robot's body joint deltas and base velocities, in the
+        robot's units."""
+        spec = self._robot_spec
         space = self.controller.action_space
-        low, high = self._robot_spec.extra_action_bounds()
-        if not len(low):
-            return space
-        return spaces.Box(np.concatenate([space.low, low]), np.concatenate([space.high, high]), dtype=np.float32)
+        arm_low, arm_high = spec.units.action_bounds(spec, self.control_mode, self._n_arm, space.low, space.high)
+        low, high = spec.extra_action_bounds()
+        return spaces.Box(np.concatenate([arm_low, low]), np.concatenate([arm_high, high]), dtype=np.float32)
+
+    @property
+    def _n_arm(self) -> int:
+        """Entries of the action's arm part (before the gripper)."""
+        return self.controller.action_space.shape[0] - 1
+
+    def action_to_sim(self, action: np.ndarray) -> np.ndarray:
+        """An action in the robot's units (`RobotSpec.units`, the action space's) to the simulation's: arm joints
+        in radians, the gripper a command from -1 (open) to 1 (closed). The identity for SI robots."""
+        spec = self._robot_spec
+        return spec.units.action_to_sim(spec, self.control_mode, self._n_arm, action)
+
+    def action_from_sim(self, action: np.ndarray) -> np.ndarray:
+        """`action_to_sim`'s inverse: an action in the simulation's units to the robot's (the action space's)."""
+        spec = self._robot_spec
+        return spec.units.action_from_sim(spec, self.control_mode, self._n_arm, action)
 
     def _apply(self, action: np.ndarray) -> None:
         """Send one checked action to the drives: arm, gripper, body joints, base (module `kitbench.robots.spec`)."""
         spec, robot = self._robot_spec, self.robot
-        n_arm = self.controller.action_space.shape[0] - 1
+        n_arm = self._n_arm
+        action = self.action_to_sim(action)
         if spec.body_joints:
             self.controller.set_body(robot.body_qpos())  # a torso's height moves where the arm reaches
         arm_targets = self.controller.arm_targets(action[:n_arm].astype(np.float64), robot.arm_qpos())
@@ -465,10 +483,12 @@ class TabletopEnv(gym.Env, abc.ABC):
     def robot_state(self) -> np.ndarray:
         """LeRobot's `observation.state`, named by `robot_state_names`: the arm's joint positions, the gripper
         opening (sum of the finger joints, metres), then any body joints and a mobile base's x, y, yaw: what a
-        real robot reports of itself, no simulator-only quantities."""
+        real robot reports of itself, no simulator-only quantities; in the robot's units (`RobotSpec.units`: the
+        SO-101's degrees and jaw 0..100)."""
         # measured as the state observation is (with its noise, under an observation perturbation)
         q = self.state_dict()["agent"]["qpos"] if self.perturbations.changes_observations else self.robot.qpos()
-        return self.robot.state_vector(q).astype(np.float32)
+        spec = self._robot_spec
+        return spec.units.state(spec, self.robot.state_vector(q)).astype(np.float32)
 
     @property
     def robot_state_names(self) -> tuple[str, ...]:
@@ -502,7 +522,8 @@ class TabletopEnv(gym.Env, abc.ABC):
 
     def camera_specs(self) -> tuple[CameraSpec, ...]:
         """Every camera an image observation has (the task's, then the robot's), whatever this env's obs mode."""
-        return (*self._sensor_cameras(), *self._robot_spec.cameras)
+        task = self._sensor_cameras() if self._robot_spec.task_cameras else []
+        return (*task, *self._robot_spec.cameras)
 
     @property
     def robot_uid(self) -> str:

@@ -43,6 +43,6 @@ class ActionNoise(Perturbation):
     def action(self, action, env, rng):
         if action is None:
             return None
-        std = noise_std(env.control_mode, self.level, len(action))
+        std = noise_std(env, self.level)
         noisy = action + rng.standard_normal(action.shape) * std
         return np.clip(noisy, env.action_space.low, env.action_space.high).astype(np.float32)

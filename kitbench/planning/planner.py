@@ -59,7 +59,7 @@ class PhasePlanner(ABC):
         self.max_acceleration = self.cfg.speed_factor * np.asarray(spec.arm_acceleration_limits)
         if self.env.control_mode in JOINT_DELTA_MODES:  # their actions move a joint at most this far per step
             fraction = MEASURED_DELTA_TRACKING if self.env.control_mode in MEASURED_DELTA_MODES else 0.98
-            step_limit = self.env.action_space.high[: self.n_arm].astype(np.float64) * fraction
+            step_limit = self.env.controller.action_space.high[: self.n_arm].astype(np.float64) * fraction
             self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
         kinematics = ArmKinematics(spec)
         kinematics.set_body(self.env.robot.body_qpos())

@@ -15,8 +15,9 @@ from kitbench.geometry import matrix_to_axis_angle
 
 
 def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bool = True) -> np.ndarray:
-    """The env's action that drives the arm to `arm_target` (joint positions) with the gripper at `gripper`,
-    clipped to the action box unless `clip` is False (then it says how far outside the box the target lies)."""
+    """The env's action (in the robot's units) that drives the arm to `arm_target` (joint positions, radians) with
+    the gripper at `gripper` (a command, -1 open .. 1 closed), clipped to the action box unless `clip` is False
+    (then it says how far outside the box the target lies)."""
     u = as_kitbench(env)
     mode = u.control_mode
     controller = u.controller
@@ -39,7 +40,7 @@ def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bo
                 arm = np.concatenate([arm, matrix_to_axis_angle(target[:3, :3] @ previous[:3, :3].T)])
     # the robot's body joints and base (if any) hold still: zero deltas, zero velocities
     extra = np.zeros(len(u.robot_spec.extra_action_names))
-    action = np.concatenate([arm, [gripper], extra]).astype(np.float32)
+    action = u.action_from_sim(np.concatenate([arm, [gripper], extra]).astype(np.float32))
     if not clip:
         return action
     space = u.action_space

@@ -106,13 +106,14 @@ class SourceReplay:
         s = self.shadow
         n_arm = s.controller.action_space.shape[0] - 1
         if self._extra == 0:  # the source's step, played once in the shadow
-            label_target = s.controller.preview(label[:n_arm], s.robot.arm_qpos())  # from the state before the step
+            # from the state before the step, in the simulation's units
+            label_target = s.controller.preview(s.action_to_sim(label)[:n_arm], s.robot.arm_qpos())
             self.shadow.step(executed)
             self._targets = (s.controller.joint_target.copy(), label_target)
         assert self._targets is not None
         executed_target, label_target = self._targets
-        expressed, fits = self._express(executed_target, executed, n_arm)
-        labelled = self._express(label_target, label, n_arm)[0]
+        expressed, fits = self._express(executed_target, s.action_to_sim(executed), n_arm)
+        labelled = self._express(label_target, s.action_to_sim(label), n_arm)[0]
         final = fits or self._extra >= CATCH_UP_STEPS
         if not final:
             # the arm catches up first; the rest of the step's command (hand, body joints, base) goes with the
@@ -132,7 +133,8 @@ class SourceReplay:
 
     def _express(self, target: np.ndarray, source_action: np.ndarray, n_arm: int) -> tuple[np.ndarray, bool]:
         """The action reaching `target` from the new env's state, and whether it fits the action box (the
-        source's body joints and base commands and hand aside, which fit it as they are)."""
+        source's body joints and base commands and hand aside, which fit it as they are); `source_action` in the
+        simulation's units."""
         action = joint_target_to_action(self.env, target, float(source_action[n_arm]), clip=False)
         extra = source_action[n_arm + 1 :]  # body joints and base: deltas and velocities whatever the arm's mode
         if len(extra):

@@ -31,15 +31,15 @@ def check_noise_scale(scale) -> None:
 class ActionNoise:
     """Per-episode noise for one control mode: `perturb(action)` returns the action to execute."""
 
-    def __init__(self, control_mode: str, scale: float, seed: int, low: np.ndarray, high: np.ndarray):
-        check_noise_scale(scale)
-        self.std = noise_std(control_mode, scale, len(low))
+    def __init__(self, std: np.ndarray, seed: int, low: np.ndarray, high: np.ndarray):
+        self.std = std
         self.low, self.high = low, high
         self.rng = np.random.default_rng([seed, _STREAM])
 
     @classmethod
     def for_env(cls, env: KitbenchEnv, scale: float, seed: int) -> ActionNoise:
-        return cls(env.control_mode, scale, seed, env.action_space.low, env.action_space.high)
+        check_noise_scale(scale)
+        return cls(noise_std(env, scale), seed, env.action_space.low, env.action_space.high)
 
     def perturb(self, action: np.ndarray) -> np.ndarray:
         noisy = action + self.rng.standard_normal(action.shape) * self.std

@@ -9,6 +9,7 @@ and a yaw joint at the root (as the reference model's URDF has it), driven in ve
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import sapien
@@ -40,6 +41,11 @@ def _parsed(scene: sapien.Scene, spec: RobotSpec, render: bool):
         for name in spec.ground_free_links:
             by_name[name].collision_groups[2] |= GROUND_FREE_BIT
         finger_material = physx.PhysxMaterial(spec.finger_friction, spec.finger_friction, 0.0)
+        for box in spec.collision_boxes:
+            link_builder = by_name[box.link]
+            kept = [r for r in link_builder.collision_records if Path(r.filename or "").name not in box.replaces]
+            link_builder.collision_records = kept
+            link_builder.add_box_collision(sapien.Pose(box.center), box.half_size)
         for link_builder in builder.link_builders:
             if not render:
                 link_builder.visual_records = []
@@ -207,7 +213,7 @@ class Robot:
             if norm < min_impulse:
                 return False
             rot = finger.entity_pose.to_transformation_matrix()[:3, :3]
-            closing = self.spec.finger_closing_y[i] * rot[:, 1]
+            closing = rot @ np.asarray(self.spec.finger_closing_axes[i])
             # The impulse on the finger from the object opposes the closing direction.
             if float(np.dot(-impulse, closing)) / norm < cos_max:
                 return False

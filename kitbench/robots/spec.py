@@ -3,9 +3,11 @@ in a scene), `ArmKinematics` (its MuJoCo twin for IK) and the env read. A robot 
 `kitbench/robots/` that builds its specs; nothing else in kitbench names a robot's joints or links.
 
 Action layout, whatever the robot: `[arm part (the control mode's), gripper, body joints..., base...]`: the arm
-part is the control mode's (7 joint values, 3 or 6 TCP values), the gripper one value (-1 open .. 1 closed), then
-one delta per body joint (a head, a torso: position-driven joints outside the arm, +-`body_action_bound` a step)
-and, for a mobile base, its forward velocity and yaw rate. A Panda has neither body joints nor a base.
+part is the control mode's (one value per arm joint, 3 or 6 TCP values), the gripper one value (-1 open .. 1
+closed), then one delta per body joint (a head, a torso: position-driven joints outside the arm,
++-`body_action_bound` a step) and, for a mobile base, its forward velocity and yaw rate. A Panda has neither body
+joints nor a base. A robot whose `units` are a real arm's shows its joints and gripper in those
+(`kitbench.robots.units`); the simulation converts at the env's boundary.
 """
 
 from __future__ import annotations
@@ -16,7 +18,26 @@ from pathlib import Path
 
 import numpy as np
 
+from kitbench.robots.units import SI, JointUnits
 from kitbench.sim.cameras import CameraSpec
+
+
+@dataclass(frozen=True)
+class CollisionBox:
+    """A box collision shape of `link`, centred at `center` in the link's frame, axes along the link's; it
+    replaces the link's collision mesh(es) named `replaces` (file names, e.g. "moving_jaw.stl")."""
+
+    link: str
+    center: tuple[float, float, float]
+    half_size: tuple[float, float, float]
+    replaces: tuple[str, ...] = ()
+
+    @classmethod
+    def spanning(cls, link: str, low, high, replaces: tuple[str, ...] = ()) -> CollisionBox:
+        """The box from corner `low` to corner `high` (link frame)."""
+        lo, hi = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+        (cx, cy, cz), (hx, hy, hz) = ((lo + hi) / 2).tolist(), ((hi - lo) / 2).tolist()
+        return cls(link, (cx, cy, cz), (hx, hy, hz), replaces)
 
 
 @dataclass(frozen=True)
@@ -40,8 +61,8 @@ class RobotSpec:
     base_pose: tuple[tuple[float, float, float], tuple[float, float, float, float]]  # where it stands (world)
     arm_velocity_limits: tuple[float, ...]  # rad/s: IK steps and the experts' timing stay within them
     arm_acceleration_limits: tuple[float, ...]  # rad/s^2
-    # For each finger link, the sign of its frame's y axis along which it closes (grasp detection).
-    finger_closing_y: tuple[float, ...] = (-1.0, 1.0)
+    # For each finger link, the direction in its own frame along which it closes (grasp detection).
+    finger_closing_axes: tuple[tuple[float, float, float], ...] = ((0.0, -1.0, 0.0), (0.0, 1.0, 0.0))
     ee_position_bound: float = 1.0  # m: `pd_ee_pose`'s position box around the base frame's origin
     body_joints: tuple[str, ...] = ()  # position-driven joints outside the arm, delta-commanded
     body_ready: tuple[float, ...] = ()
@@ -50,6 +71,13 @@ class RobotSpec:
     base_max_speed: float = 1.0  # m/s, forward velocity action bound
     base_max_yaw_rate: float = 3.14  # rad/s
     cameras: tuple[CameraSpec, ...] = field(default_factory=tuple)
+    # Whether image observations also hold the task's own cameras (False: a robot whose station brings its own).
+    task_cameras: bool = True
+    # How actions and observation.state express the joints (`kitbench.robots.units`): SI, or a real arm's layout.
+    units: JointUnits = SI
+    # IK's weight on the TCP's orientation against its position (1): an arm with fewer than six joints reaches
+    # the position and as much of the orientation as it can with a low one.
+    orientation_cost: float = 0.5
     # Critically damped on the Panda's heaviest joint: 0.1 rad steps settle in ~0.1 s with < 1% overshoot, where
     # the reference gains (1e3, 1e2) reach only a quarter of a step within one 50 ms control period.
     arm_stiffness: float = 1e4
@@ -72,6 +100,9 @@ class RobotSpec:
     # Links that never touch the ground or the table (a mobile base's wheels and body sit on the ground plane:
     # resting contacts there would push a base that holds still).
     ground_free_links: tuple[str, ...] = ()
+    # Collision boxes replacing some of a link's collision meshes (`CollisionBox`): SAPIEN wraps each mesh in one
+    # convex hull, which for a jaw moulded in one piece with its mount fills the gap an object is held in.
+    collision_boxes: tuple[CollisionBox, ...] = ()
     # Links whose visual meshes are decimated for CPU rendering (kitbench.robots.visuals); none: kept as is.
     decimate_visuals: bool = False
     # The room the robot needs in front of its base (m): the table's near edge stays at least this far from
@@ -104,6 +135,5 @@ class RobotSpec:
 
     @property
     def state_names(self) -> tuple[str, ...]:
-        """LeRobot's `observation.state`: the arm's joints, the gripper opening, body joints, base x, y, yaw."""
-        names = (*self.arm_joints, "gripper_opening", *self.body_joints)
-        return (*names, "base_x", "base_y", "base_yaw") if self.has_base else names
+        """LeRobot's `observation.state`: the arm's joints, the gripper, body joints, base x, y, yaw (`units`)."""
+        return self.units.state_names(self)

@@ -33,6 +33,12 @@ BLUE = (12 / 255, 42 / 255, 160 / 255, 1.0)
 MAX_TILT = 0.08  # rad
 MAX_Z_ERROR = 0.005  # m
 LYING_QUAT = (math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0)  # long axis along world x
+SPAWN_HALF_WIDTH = 0.1  # m: the peg's centre is drawn uniformly from a square this wide each side of the origin
+# Robots for which the task is built smaller (peg and spawn square alike), with the same success criteria: the
+# SO-101's jaw opens ~5 cm at its pads and it reaches ~26 cm from its base at table height, so its peg is half the
+# size (12 x 2.5 x 2.5 cm, 75 g: the 5 cm peg would fill the jaw, and 0.6 kg is a third of a servo's stall torque at
+# arm's length) and lies within 5 cm of the origin, 17-27 cm in front of the arm's base (tests/test_so101.py).
+ROBOT_SCALE = {"so101": 0.5}
 
 
 def peg_success(position, quaternion, half_length: float = PEG_HALF_LENGTH) -> tuple[bool, float, float]:
@@ -62,7 +68,7 @@ def build_peg(scene: sapien.Scene, render: bool, scale: float = 1.0) -> sapien.E
 class LiftPegUprightEnv(TabletopEnv):
     """Move a peg lying on the table to an upright position on the table (50 control steps)."""
 
-    supported_robots = ("panda", "fetch")
+    supported_robots = ("panda", "fetch", "so101")
     max_dense_reward = 3.0
     default_qpos_noise = 0.02
     environment_state_keys = ("peg_pose",)
@@ -70,17 +76,26 @@ class LiftPegUprightEnv(TabletopEnv):
     # seeds 0-499 within the real arm's joint limits (its wrist turns ~2 rad twice: kitbench/planning/
     # lift_peg_upright_fetch.py). 170 steps (8.5 s) leave room for the recipes' 10 settling steps and a margin; the
     # Panda keeps the reference's 50.
-    robot_max_episode_steps: ClassVar[dict[str, int]] = {"fetch": 170}
+    # The SO-101's expert (servos at half their no-load speed) needs median 38 steps (max 60) in pd_joint_pos over
+    # seeds 10000-10299 and median 64 (max 79) in pd_joint_delta_pos over seeds 0-99, whose +-0.1 rad steps
+    # it takes at 60%; 100 steps (5 s) leave room for both and for the recipes' settling steps.
+    robot_max_episode_steps: ClassVar[dict[str, int]] = {"fetch": 170, "so101": 100}
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
     failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
     expert: ClassVar[dict[str, str | type]] = {
         "panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner",
         "fetch": "kitbench.planning.lift_peg_upright_fetch:FetchLiftPegUprightPlanner",
+        "so101": "kitbench.planning.lift_peg_upright_so101:SO101LiftPegUprightPlanner",
     }
 
+    @property
+    def task_scale(self) -> float:
+        """The size of this robot's variant of the task (`ROBOT_SCALE`), before any `object_scale` perturbation."""
+        return ROBOT_SCALE.get(self.robot_uid, 1.0)
+
     def _load_task(self, scene, render):
-        self.peg_scale = self.object_scale
+        self.peg_scale = self.object_scale * self.task_scale
         self.peg = build_peg(scene, render, self.peg_scale)
 
     @property
@@ -107,7 +122,8 @@ class LiftPegUprightEnv(TabletopEnv):
         return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 128, 128, math.pi / 2)]
 
     def _initialize_episode(self, rng, options):
-        xy = rng.uniform(-0.1, 0.1, 2)
+        half = SPAWN_HALF_WIDTH * self.task_scale
+        xy = rng.uniform(-half, half, 2)
         set_actor_pose(self.peg, [xy[0], xy[1], PEG_HALF_WIDTH * self.peg_scale], LYING_QUAT)
 
     def evaluate(self):

@@ -1,0 +1,119 @@
+"""`JointUnits`: how a robot's actions and LeRobot `observation.state` express its joints and gripper.
+
+Inside the simulation joints are radians and the gripper action is a command from -1 (open) to 1 (closed)
+(`kitbench.robots.spec`). `SI` shows them so. `SO_FOLLOWER` shows them as LeRobot's SO follower reports a real
+SO-100/SO-101 (`lerobot/robots/so_follower`, `use_degrees`): the body joints in degrees, the jaw's position from
+0 to 100 over its range (LeRobot's `RANGE_0_100`), each named `<motor>.pos`, so that a recording has the real
+arm's layout. The env converts at its boundary (`TabletopEnv.action_to_sim`, `action_from_sim`, `robot_state`).
+
+Joint actions (absolute and deltas) take the joint unit; end-effector actions stay in metres and radians, having
+no motor to speak for. A robot in `SO_FOLLOWER` units commands its jaw's position (0..100) in every mode, as the
+real arm's leader does; its body joints and base, if it had any, would stay in SI.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from kitbench.robots.spec import RobotSpec
+
+JOINT_MODES = ("pd_joint_pos", "pd_joint_delta_pos", "pd_joint_target_delta_pos")
+
+
+@dataclass(frozen=True)
+class JointUnits:
+    name: str
+    per_radian: float = 1.0  # joint values (positions and deltas) per radian
+    gripper_percent: bool = False  # the gripper as its joint's position, 0 (closed) .. 100 (open) over its range
+    suffix: str = ""  # appended to each joint's name (LeRobot's motor features: ".pos")
+
+    # -- names -----------------------------------------------------------------------------------------
+    def state_names(self, spec: RobotSpec) -> tuple[str, ...]:
+        """LeRobot's `observation.state`: the arm's joints, the gripper, body joints, base x, y, yaw."""
+        gripper = f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper_opening"
+        names = (*(f"{j}{self.suffix}" for j in spec.arm_joints), gripper, *spec.body_joints)
+        return (*names, "base_x", "base_y", "base_yaw") if spec.has_base else names
+
+    def joint_action_names(self, spec: RobotSpec, mode: str) -> list[str]:
+        """The arm part's names in a joint mode: the joints (absolute) or `delta_<joint>`."""
+        prefix = "" if mode == "pd_joint_pos" else "delta_"
+        return [f"{prefix}{j}{self.suffix}" for j in spec.arm_joints]
+
+    def gripper_action_name(self, spec: RobotSpec) -> str:
+        return f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper"
+
+    # -- values ----------------------------------------------------------------------------------------
+    def state(self, spec: RobotSpec, vector: np.ndarray) -> np.ndarray:
+        """`Robot.state_vector` (radians, gripper opening) in these units."""
+        out = np.array(vector, dtype=np.float64)
+        n = len(spec.arm_joints)
+        out[:n] *= self.per_radian
+        if self.gripper_percent:
+            low, high = self._jaw_range(spec)
+            out[n] = 100.0 * (out[n] - low) / (high - low)
+        return out
+
+    def action_to_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
+        """An action in these units to the simulation's (radians, gripper command -1..1)."""
+        if self is SI:
+            return action
+        out = np.array(action, dtype=np.float64)
+        if mode in JOINT_MODES:
+            out[:n_arm] /= self.per_radian
+        if self.gripper_percent:
+            low, high = self._jaw_range(spec)
+            target = low + out[n_arm] / 100.0 * (high - low)
+            out[n_arm] = 2.0 * (target - spec.finger_open) / (spec.finger_closed - spec.finger_open) - 1.0
+        return out
+
+    def action_from_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
+        """An action in the simulation's units to these (`action_to_sim`'s inverse)."""
+        if self is SI:
+            return action
+        out = np.array(action, dtype=np.float64)
+        if mode in JOINT_MODES:
+            out[:n_arm] *= self.per_radian
+        if self.gripper_percent:
+            low, high = self._jaw_range(spec)
+            target = self._unclipped(spec, out[n_arm])  # unclipped: a caller may ask how far out of the box
+            out[n_arm] = 100.0 * (target - low) / (high - low)
+        return out.astype(np.asarray(action).dtype)
+
+    def action_bounds(self, spec: RobotSpec, mode: str, n_arm: int, low, high) -> tuple[np.ndarray, np.ndarray]:
+        """The action box of a mode (the controller's, in the simulation's units) in these units."""
+        lo, hi = np.array(low, dtype=np.float64), np.array(high, dtype=np.float64)
+        if mode in JOINT_MODES:
+            lo[:n_arm] *= self.per_radian
+            hi[:n_arm] *= self.per_radian
+        if self.gripper_percent:
+            lo[n_arm], hi[n_arm] = 0.0, 100.0
+        return lo.astype(np.float32), hi.astype(np.float32)
+
+    def joint_unit(self, mode: str) -> float:
+        """Action units per radian of the arm part of `mode` (1 for end-effector modes)."""
+        return self.per_radian if mode in JOINT_MODES else 1.0
+
+    # -- the jaw ---------------------------------------------------------------------------------------
+    @staticmethod
+    def _jaw(spec: RobotSpec) -> str:
+        if len(spec.finger_joints) != 1:
+            raise ValueError(f"{spec.uid}: a gripper in percent needs one jaw joint, not {spec.finger_joints}")
+        return spec.finger_joints[0]
+
+    @staticmethod
+    def _jaw_range(spec: RobotSpec) -> tuple[float, float]:
+        """The jaw joint's range, closed to open (the ends of the 0..100 scale)."""
+        return spec.finger_closed, spec.finger_open
+
+    @staticmethod
+    def _unclipped(spec: RobotSpec, command: float) -> float:
+        return spec.finger_open + (command + 1.0) * 0.5 * (spec.finger_closed - spec.finger_open)
+
+
+SI = JointUnits("si")
+SO_FOLLOWER = JointUnits("so_follower", per_radian=180.0 / math.pi, gripper_percent=True, suffix=".pos")

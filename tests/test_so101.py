@@ -1,0 +1,212 @@
+"""The SO-101: one kinematic model in SAPIEN and mink, drives that track, control modes in the real arm's units,
+its LiftPegUpright variant and expert, and recordings in exactly the layout LeRobot's SO follower declares."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from kitbench.control.kinematics import ArmKinematics, arm_joint_limits
+from kitbench.errors import KitbenchError
+from kitbench.geometry import pose_to_matrix
+from kitbench.policies.joint_targets import joint_target_to_action
+from kitbench.recording.config import RecordConfig
+from kitbench.recording.recorder import record
+from kitbench.registration import make_env
+from kitbench.robots import ROBOTS
+
+TASK = "LiftPegUpright-v1"
+SPEC = ROBOTS["so101"]
+
+
+def _env(mode: str = "pd_joint_pos", **kwargs):
+    return make_env(TASK, obs_mode="state", control_mode=mode, robot_uids="so101", robot_init_qpos_noise=0.0, **kwargs)
+
+
+def test_sapien_and_mink_agree_on_the_tcp():
+    env = _env()
+    u = env.unwrapped
+    kinematics = ArmKinematics(SPEC)
+    limits = arm_joint_limits(SPEC)
+    rng = np.random.default_rng(0)
+    base = pose_to_matrix(u.robot.base_pose.p, u.robot.base_pose.q)
+    for _ in range(10):
+        q = rng.uniform(limits[:, 0] * 0.9, limits[:, 1] * 0.9)
+        u.robot.reset(q)
+        tcp = u.robot.tcp_pose()
+        sapien_tcp = pose_to_matrix(tcp.p, tcp.q)
+        mink_tcp = base @ kinematics.tcp_pose(q)
+        assert np.linalg.norm(sapien_tcp[:3, 3] - mink_tcp[:3, 3]) < 1e-4
+        assert np.abs(sapien_tcp[:3, :3] - mink_tcp[:3, :3]).max() < 1e-4
+    env.close()
+
+
+def test_state_and_actions_are_in_the_so_followers_units():
+    """Body joints in degrees, the jaw 0 (closed) .. 100 (open) over its range; actions convert back exactly."""
+    env = _env()
+    u = env.unwrapped
+    env.reset(seed=0)
+    q = u.robot.qpos()
+    state = u.robot_state()
+    assert np.allclose(state[:5], np.degrees(q[:5]), atol=1e-3)
+    assert state[5] == pytest.approx(100.0, abs=0.5)  # reset opens the jaw fully
+    assert list(u.action_space.low[5:]) == [0.0] and list(u.action_space.high[5:]) == [100.0]
+    assert np.allclose(u.action_space.high[:5], np.degrees(arm_joint_limits(SPEC)[:, 1]), atol=1e-3)
+    action = np.array([10.0, -20.0, 30.0, 40.0, -50.0, 25.0], dtype=np.float32)
+    sim = u.action_to_sim(action)
+    assert np.allclose(sim[:5], np.radians(action[:5]))
+    assert sim[5] == pytest.approx(0.5)  # 25% open: halfway from open (-1) to closed (1) and on
+    assert np.allclose(u.action_from_sim(sim), action, atol=1e-4)
+    target = action.copy()
+    target[5] = 0.0
+    for _ in range(6):
+        env.step(target)
+    state = u.robot_state()
+    assert np.allclose(state[:5], target[:5], atol=0.5)  # degrees
+    assert state[5] < 3.0  # closed
+    env.close()
+
+
+@pytest.mark.parametrize("joint", range(4))
+def test_a_joint_step_is_done_within_two_control_periods(joint):
+    env = _env()
+    u = env.unwrapped
+    env.reset(seed=0)
+    start = u.robot_state().copy()
+    target = start.copy()
+    target[joint] += np.degrees(0.1)
+    env.step(target)
+    env.step(target)
+    moved = (u.robot_state()[joint] - start[joint]) / np.degrees(0.1)
+    assert 0.97 < moved < 1.03
+    env.close()
+
+
+def test_joint_delta_mode_moves_by_degrees():
+    env = _env("pd_joint_delta_pos")
+    u = env.unwrapped
+    env.reset(seed=0)
+    start = u.robot_state().copy()
+    assert u.action_space.high[0] == pytest.approx(np.degrees(0.1), rel=1e-5)
+    action = np.zeros(6, dtype=np.float32)
+    action[1] = 4.0
+    action[5] = 100.0  # stays open
+    env.step(action)
+    env.step(np.array([0, 0, 0, 0, 0, 100], dtype=np.float32))
+    assert u.robot_state()[1] - start[1] == pytest.approx(4.0, abs=0.3)
+    env.close()
+
+
+def test_ee_delta_pose_tracks_position_and_the_reachable_rotations():
+    """Five joints: the TCP's position and its roll about the approach axis are reached."""
+    env = _env("pd_ee_delta_pose")
+    u = env.unwrapped
+    env.reset(seed=0)
+    before = pose_to_matrix(u.robot.tcp_pose().p, u.robot.tcp_pose().q)
+    action = np.zeros(7, dtype=np.float32)
+    action[0] = 0.02  # 2 cm forward
+    action[6] = 100.0
+    for _ in range(4):
+        env.step(action if _ == 0 else np.array([0, 0, 0, 0, 0, 0, 100], dtype=np.float32))
+    after = pose_to_matrix(u.robot.tcp_pose().p, u.robot.tcp_pose().q)
+    assert np.allclose(after[:3, 3] - before[:3, 3], [0.02, 0.0, 0.0], atol=2e-3)
+    # roll about the approach axis (the jaw points down at the ready pose: world z)
+    before = after
+    roll = np.zeros(7, dtype=np.float32)
+    roll[5] = 0.1
+    roll[6] = 100.0
+    env.step(roll)
+    for _ in range(3):
+        env.step(np.array([0, 0, 0, 0, 0, 0, 100], dtype=np.float32))
+    after = pose_to_matrix(u.robot.tcp_pose().p, u.robot.tcp_pose().q)
+    turned = np.arctan2(after[1, 0], after[0, 0]) - np.arctan2(before[1, 0], before[0, 0])
+    assert (turned + np.pi) % (2 * np.pi) - np.pi == pytest.approx(0.1, abs=0.02)
+    env.close()
+
+
+def test_the_task_variant_is_half_size():
+    env = _env()
+    u = env.unwrapped
+    for seed in range(5):
+        env.reset(seed=seed)
+        assert u.peg_scale == 0.5
+        assert np.all(np.abs(u.peg.pose.p[:2]) <= 0.05)
+    assert u.evaluate()["success"] is False
+    env.close()
+
+
+@pytest.mark.parametrize("mode", ["pd_joint_pos", "pd_joint_delta_pos"])
+def test_the_expert_stands_the_peg_up(mode):
+    env = _env(mode)
+    u = env.unwrapped
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        planner = u.make_expert()
+        planner.reset(obs, info)
+        for _ in range(u.episode_steps("so101")):
+            target = planner.act(obs)
+            obs, _, terminated, _, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
+            if terminated:
+                break
+        assert info["success"], (seed, planner.failure)
+    env.close()
+
+
+def _so_follower_features(cameras: tuple[str, ...]) -> dict:
+    """What `lerobot-record` writes for an SO-101 follower with these cameras (128x128 images)."""
+    from lerobot.cameras.opencv.configuration_opencv import OpenCVCameraConfig
+    from lerobot.robots.so_follower import SOFollowerRobotConfig
+    from lerobot.robots.so_follower.so_follower import SOFollower
+    from lerobot.utils.feature_utils import hw_to_dataset_features
+
+    configs = {n: OpenCVCameraConfig(index_or_path=0, width=128, height=128, fps=20) for n in cameras}
+    robot = SOFollower(SOFollowerRobotConfig(port="/dev/null", cameras=configs, id="kitbench"))
+    return {
+        **hw_to_dataset_features(robot.action_features, "action"),
+        **hw_to_dataset_features(robot.observation_features, "observation", use_video=True),
+    }
+
+
+@pytest.mark.parametrize("obs_mode", ["state", "rgb"])
+def test_a_recording_has_the_so_followers_features(tmp_path, obs_mode, request):
+    if obs_mode == "rgb":
+        request.getfixturevalue("needs_vulkan")
+    out = tmp_path / "so101"
+    config = RecordConfig.of(
+        task=TASK, robot="so101", episodes=1, out=out, obs_mode=obs_mode, control_mode="pd_joint_pos"
+    )
+    record(config, progress=False)
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["robot_type"] == "so101"
+    features = info["features"]
+    expected = _so_follower_features(("front", "wrist") if obs_mode == "rgb" else ())
+    for name, feature in expected.items():
+        assert features[name]["dtype"] == feature["dtype"], name
+        assert tuple(features[name]["shape"]) == tuple(feature["shape"]), name
+        if feature["dtype"] != "video":
+            assert features[name]["names"] == feature["names"], name
+    camera_features = {n for n in features if n.startswith("observation.images.")}
+    assert camera_features == {n for n in expected if n.startswith("observation.images.")}
+    # the values are the SO follower's: degrees within the joints' ranges, the jaw within 0..100
+    import pandas as pd
+
+    frames = pd.concat(pd.read_parquet(p) for p in sorted((out / "data").rglob("*.parquet")))
+    state = np.stack(frames["observation.state"].to_numpy())
+    action = np.stack(frames["action"].to_numpy())
+    limits = np.degrees(arm_joint_limits(SPEC))
+    for values in (state, action):
+        assert np.all(values[:, :5] >= limits[:, 0] - 1) and np.all(values[:, :5] <= limits[:, 1] + 1)
+        assert np.all(values[:, 5] >= -1) and np.all(values[:, 5] <= 101)
+    assert state[:, 5].max() > 90 and state[:, 5].min() < 40  # opened, then closed on the peg
+    assert np.abs(state[:, :5]).max() > 10  # degrees, not radians
+
+
+def test_a_task_without_the_so101_names_its_robots(tmp_path):
+    with pytest.raises(KitbenchError, match=r"robot 'so101' is not supported by .*; valid choices: panda"):
+        make_env("AssemblingKits-v1", robot_uids="so101")
+    out = tmp_path / "never"
+    with pytest.raises(KitbenchError, match="valid choices"):
+        record(RecordConfig.of(task="AssemblingKits-v1", robot="so101", episodes=1, out=out), progress=False)
+    assert not out.exists()
