@@ -68,23 +68,24 @@ COLLISION_BOXES = (
     CollisionBox.spanning(MOVING_JAW_LINK, (-0.0123, -0.030, -0.004), (0.0086, -0.005, 0.042), _JAW),
 )
 
-# Where it stands: clamped to the table's near edge like a real SO-101, facing +x, the tasks' objects 15-30 cm in
-# front of its shoulder (its reach at table height is ~35 cm).
-BASE_POSE = ((-0.22, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+# Where it stands: clamped to the table's near edge like a real SO-101, facing +x: a jaw pointing down reaches
+# ~0.3 m out at table height (0.27 m out and 0.2 m to the side), which covers the tasks' workspaces near the origin.
+BASE_POSE = ((-0.19, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
 # The jaw 13 cm above the table, 20 cm in front of the base, pointing down: the arm's usual start over the work.
 READY_ARM_QPOS = (0.0, -0.45, 0.45, 1.45, 1.5708)
 
 # A typical SO-101 station's two cameras, named as LeRobot's docs name them in `lerobot-record --robot.cameras`:
 # `front`, across the table looking back at the arm, and `wrist`, on the fixed jaw's mount looking along the jaw.
 FRONT_CAMERA = CameraSpec.looking_at("front", [0.25, 0.0, 0.30], [-0.12, 0.0, 0.0], 128, 128, 1.0)
-# below the fixed jaw (link -x), looking along the approach (link -z), tilted 25 degrees towards the jaws
+# under the fixed jaw (link -x) near the wrist, looking along the approach (link -z) tilted 15 degrees towards the
+# jaws: the jaw's tip in the upper third of the image, the object between the jaws below it
 WRIST_CAMERA = CameraSpec(
     "wrist",
     128,
     128,
-    1.4,
-    (-0.045, 0.0, -0.035),
-    (math.cos(math.radians(32.5)), 0.0, math.sin(math.radians(32.5)), 0.0),
+    1.5,
+    (-0.06, 0.0, -0.02),
+    (math.cos(math.radians(37.5)), 0.0, math.sin(math.radians(37.5)), 0.0),
     mount=FIXED_JAW_LINK,
 )
 

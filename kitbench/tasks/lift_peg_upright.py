@@ -37,7 +37,7 @@ SPAWN_HALF_WIDTH = 0.1  # m: the peg's centre is drawn uniformly from a square t
 # Robots for which the task is built smaller (peg and spawn square alike), with the same success criteria: the
 # SO-101's jaw opens ~5 cm at its pads and it reaches ~26 cm from its base at table height, so its peg is half the
 # size (12 x 2.5 x 2.5 cm, 75 g: the 5 cm peg would fill the jaw, and 0.6 kg is a third of a servo's stall torque at
-# arm's length) and lies within 5 cm of the origin, 17-27 cm in front of the arm's base (tests/test_so101.py).
+# arm's length) and lies within 5 cm of the origin, 14-24 cm in front of the arm's base (tests/test_so101.py).
 ROBOT_SCALE = {"so101": 0.5}
 
 
