@@ -201,6 +201,8 @@ def test_a_recording_has_the_so_followers_features(tmp_path, obs_mode, request):
         assert np.all(values[:, 5] >= -1) and np.all(values[:, 5] <= 101)
     assert state[:, 5].max() > 90 and state[:, 5].min() < 40  # opened, then closed on the peg
     assert np.abs(state[:, :5]).max() > 10  # degrees, not radians
+    card = (out / "README.md").read_text()
+    assert "joints in degrees, `gripper.pos` 0 (closed) to 100 (open)" in card and "gripper opening (m)" not in card
 
 
 def test_a_task_without_the_so101_names_its_robots(tmp_path):

@@ -37,7 +37,15 @@ POINTCLOUD_PARTS = {
 }
 
 
-def _describe(name: str) -> str:
+def _describe(name: str, robot: str | None = None) -> str:
+    """What feature `name` holds; the state's and the action's units are the robot's (`RobotSpec.units`)."""
+    from kitbench.robots import ROBOTS
+
+    units = ROBOTS[robot].units if robot in ROBOTS else None
+    if units is not None and name == STATE and units.state_text:
+        return units.state_text
+    if units is not None and name == "action" and units.action_text:
+        return units.action_text
     if name in UNITS:
         return UNITS[name]
     if name.startswith(POINTCLOUD_PREFIX):
@@ -151,7 +159,9 @@ def card_text(root: Path) -> str:
     instructions = sorted({e.task for e in episodes if e.task})
     robot = info.get("robot_type") or recording.robot or "?"
     table = ["| feature | dtype | shape | what |", "|---|---|---|---|"]
-    table += [f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n)} |" for n in stored]
+    table += [
+        f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n, robot)} |" for n in stored
+    ]
     made = [f"policy `{recording.policy}`"]
     if recording.source:
         made.append(f"converted from `{recording.source}` (its executed actions replayed from each seed)")

@@ -31,6 +31,9 @@ class JointUnits:
     per_radian: float = 1.0  # joint values (positions and deltas) per radian
     gripper_percent: bool = False  # the gripper as its joint's position, 0 (closed) .. 100 (open) over its range
     suffix: str = ""  # appended to each joint's name (LeRobot's motor features: ".pos")
+    # What a dataset card says `observation.state` and `action` hold in these units (None: kitbench's SI wording).
+    state_text: str | None = None
+    action_text: str | None = None
 
     # -- names -----------------------------------------------------------------------------------------
     def state_names(self, spec: RobotSpec) -> tuple[str, ...]:
@@ -116,4 +119,13 @@ class JointUnits:
 
 
 SI = JointUnits("si")
-SO_FOLLOWER = JointUnits("so_follower", per_radian=180.0 / math.pi, gripper_percent=True, suffix=".pos")
+SO_FOLLOWER = JointUnits(
+    "so_follower",
+    per_radian=180.0 / math.pi,
+    gripper_percent=True,
+    suffix=".pos",
+    state_text="the arm's motors as LeRobot's SO follower reports them: joints in degrees, `gripper.pos` 0 (closed) "
+    "to 100 (open)",
+    action_text="the policy's action in the control mode, in the SO follower's units (joint targets or deltas in "
+    "degrees; `gripper.pos` 0 closed .. 100 open, absolute in every mode)",
+)
