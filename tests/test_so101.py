@@ -212,3 +212,50 @@ def test_a_task_without_the_so101_names_its_robots(tmp_path):
     with pytest.raises(KitbenchError, match="valid choices"):
         record(RecordConfig.of(task="AssemblingKits-v1", robot="so101", episodes=1, out=out), progress=False)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("mode", ["pd_joint_pos", "pd_ee_delta_pose"])
+def test_convert_turns_a_joint_delta_recording_into_another_mode_in_the_arms_units(tmp_path, mode):
+    """A `pd_joint_delta_pos` recording (deltas in degrees, with noise) converted: every episode still succeeds and
+    its stored actions, replayed from the seed in the new mode, succeed too (the jaw stays 0..100 throughout)."""
+    import pandas as pd
+
+    from kitbench.recording.convert import convert_config
+
+    source = tmp_path / "src"
+    config = RecordConfig.of(
+        task=TASK, robot="so101", episodes=2, out=source, control_mode="pd_joint_delta_pos", action_noise=0.05
+    )
+    record(config, progress=False)
+    out = tmp_path / mode
+    summary = record(convert_config(source, out, control_mode=mode), progress=False)
+    assert summary.stored == 2
+    frames = pd.concat(pd.read_parquet(p) for p in sorted((out / "data").rglob("*.parquet")))
+    executed = np.stack(frames["executed_action"].to_numpy())
+    assert np.all(executed[:, -1] >= 0) and np.all(executed[:, -1] <= 100)
+    episodes = [json.loads(x) for x in (out / "meta/kitbench_episodes.jsonl").open()]
+    assert all(e["success"] for e in episodes)
+    env = make_env(TASK, obs_mode="state", control_mode=mode, robot_uids="so101")
+    for episode in episodes:
+        env.reset(seed=episode["seed"])
+        rows = frames["episode_index"].to_numpy().reshape(-1) == episode["episode_index"]
+        for action in executed[rows]:
+            _, _, terminated, _, info = env.step(action)
+            if terminated:
+                break
+        assert info["success"]
+    env.close()
+
+
+def test_a_card_judges_joints_held_still_in_the_arms_units(tmp_path):
+    """A joint jittering by 0.03 degrees (5e-4 rad) is held still; one moving by 0.1 degrees is not, though both
+    are above the SI threshold read as degrees."""
+    from kitbench.recording.card import STILL_STD, still_entries
+
+    names = list(SPEC.state_names)
+    std = [0.03, 0.1, 20.0, 20.0, 20.0, 30.0]
+    (tmp_path / "meta").mkdir()
+    (tmp_path / "meta/stats.json").write_text(json.dumps({"observation.state": {"std": std}}))
+    info = {"robot_type": "so101", "features": {"observation.state": {"names": names}}}
+    assert std[0] > STILL_STD and std[1] > STILL_STD
+    assert still_entries(tmp_path, info) == {"observation.state": ["shoulder_pan.pos"]}

@@ -90,9 +90,11 @@ STILL_STD = 1e-3
 STILL_CHECKED = {STATE: "STATE", ENVIRONMENT_STATE: "ENV"}
 
 
-def held_still(names: list[str], std: list[float]) -> list[str]:
-    """The names whose standard deviation is below `STILL_STD`: the entries a robot (or the task) holds still."""
-    return [name for name, value in zip(names, std, strict=True) if value < STILL_STD]
+def held_still(names: list[str], std: list[float], scales: list[float] | None = None) -> list[str]:
+    """The names whose standard deviation is below `STILL_STD` (times each entry's unit per radian or metre,
+    `scales`: the SO-101's degrees and gripper percent): the entries a robot (or the task) holds still."""
+    scales = scales or [1.0] * len(names)
+    return [name for name, value, k in zip(names, std, scales, strict=True) if value < STILL_STD * k]
 
 
 def still_entries(root: Path, info: dict) -> dict[str, list[str]]:
@@ -102,11 +104,17 @@ def still_entries(root: Path, info: dict) -> dict[str, list[str]]:
     if not stats_path.is_file():
         return {}
     stats = json.loads(stats_path.read_text())
+    from kitbench.robots import ROBOTS
+
+    robot = ROBOTS.get(info.get("robot_type") or "")
     found = {}
     for key in STILL_CHECKED:
         std = stats.get(key, {}).get("std")
         names = info["features"].get(key, {}).get("names") or []
-        if std is not None and len(names) == len(std) and (still := held_still(names, std)):
+        scales = robot.units.state_scales(robot) if robot is not None and key == STATE else None
+        if scales is not None and len(scales) != len(names):
+            scales = None
+        if std is not None and len(names) == len(std) and (still := held_still(names, std, scales)):
             found[key] = still
     return found
 

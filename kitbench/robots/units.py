@@ -61,6 +61,17 @@ class JointUnits:
             out[n] = 100.0 * (out[n] - low) / (high - low)
         return out
 
+    def state_scales(self, spec: RobotSpec) -> list[float]:
+        """Each `observation.state` entry's units per SI unit (radian or metre): what a threshold set in SI, such
+        as a dataset card's for joints held still, is multiplied by."""
+        n = len(spec.arm_joints)
+        scales = [1.0] * len(self.state_names(spec))
+        scales[:n] = [self.per_radian] * n
+        if self.gripper_percent:
+            low, high = self._jaw_range(spec)
+            scales[n] = 100.0 / abs(high - low)
+        return scales
+
     def action_to_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
         """An action in these units to the simulation's (radians, gripper command -1..1)."""
         if self is SI:
