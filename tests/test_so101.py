@@ -259,3 +259,32 @@ def test_a_card_judges_joints_held_still_in_the_arms_units(tmp_path):
     info = {"robot_type": "so101", "features": {"observation.state": {"names": names}}}
     assert std[0] > STILL_STD and std[1] > STILL_STD
     assert still_entries(tmp_path, info) == {"observation.state": ["shoulder_pan.pos"]}
+
+
+def test_the_lerobot_plugin_runs_the_so101_in_its_units():
+    from lerobot.envs.factory import make_env as lerobot_make_env
+
+    from lerobot_env_kitbench import KitbenchEnvConfig
+
+    config = KitbenchEnvConfig(task=TASK, robot="so101", obs_type="pixels_state", control_mode="pd_joint_pos")
+    shapes = {k: tuple(v.shape) for k, v in config.features.items() if not k.startswith("sensor_param")}
+    assert shapes == {
+        "action": (6,),
+        "agent_pos": (6,),
+        "environment_state": (7,),
+        "pixels/front": (128, 128, 3),
+        "pixels/wrist": (128, 128, 3),
+    }
+    envs = lerobot_make_env(KitbenchEnvConfig(task=TASK, robot="so101", control_mode="pd_joint_pos"), n_envs=1)
+    envs = envs["kitbench"][0]
+    try:
+        obs, _ = envs.reset(seed=[0])
+        start = obs["agent_pos"][0].copy()
+        assert start[5] == pytest.approx(100.0, abs=0.5) and np.abs(start[:5]).max() > 10  # degrees, jaw open
+        target = start.copy()
+        target[0] += 5.0  # degrees
+        for _ in range(3):
+            obs, *_ = envs.step(target[None].astype(np.float32))
+        assert obs["agent_pos"][0][0] == pytest.approx(target[0], abs=0.3)
+    finally:
+        envs.close()

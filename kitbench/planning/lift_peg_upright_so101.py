@@ -10,8 +10,9 @@ height. The peg is held `grasp_offset` towards its outer end so the jaw ends hig
 table is 4 mm out of reach at 24 cm; 9 cm up, 1 mm). The jaw's heading follows the arm's plane (five joints set
 no other), so the hand at the end points along the radius through the goal, not along the peg's first axis.
 
-The jaw is single-acting: the fixed jaw's face is the TCP, and the peg's axis lies `PEG_HALF_WIDTH` beside it
-along the TCP's y (towards the moving jaw), where the closing jaw presses it.
+The jaw is single-acting: the fixed jaw's face is the TCP, and the peg's axis ends up `PEG_HALF_WIDTH` beside it
+along the TCP's y (towards the moving jaw), where the closing jaw presses it. The fixed jaw comes down
+`fixed_jaw_clearance` away from the peg and the closing jaw pushes the peg onto it.
 
 Phases (`planner.phase`): approach and descend, grasp (close, check, one retry), swing, place (re-aim the hand if
 the peg turned in it), set_down, release, done, failed.
@@ -36,12 +37,13 @@ from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
 class PlannerConfig:
     """The expert's tunables; the defaults are the measured best (module docstring)."""
 
-    grasp_offset: float = (
-        0.3  # TCP along the peg's axis from its centre towards its outer end, fraction of the half-length
-    )
-    grasp_height: float = (
-        0.015  # TCP above the peg's axis: the fixed jaw's tip (23 mm below it) clears the table by 4 mm, m
-    )
+    # TCP along the peg's axis from its centre towards its outer end, fraction of the half-length
+    grasp_offset: float = 0.3
+    # the fixed jaw comes down this far beside the peg, not touching it: the closing jaw pushes the peg across onto
+    # it, so a hand a few millimetres off (a learned policy's) still grasps instead of landing on the peg
+    fixed_jaw_clearance: float = 0.006
+    # TCP above the peg's axis: the fixed jaw's tip (23 mm below it) clears the table by 4 mm, m
+    grasp_height: float = 0.015
     descend_height: float = 0.04  # the approach ends with a vertical descent from this high above the grasp, m
     final_reach: float = 0.265  # horizontal distance of the TCP from the base's origin with the peg upright, m
     reach_step: float = 0.01  # how much further out to retry a swing the IK cannot follow, m
@@ -97,7 +99,8 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
         for x in (outward, -outward):
             y = np.cross(down, x)
             centre = peg[:3, 3] + self.cfg.grasp_offset * self.half_length * outward
-            position = centre - self.half_width * y + [0.0, 0.0, self.cfg.grasp_height]
+            beside = self.half_width + self.cfg.fixed_jaw_clearance
+            position = centre - beside * y + [0.0, 0.0, self.cfg.grasp_height]
             pose = make_pose(np.column_stack([x, y, down]), position)
             result = self.ik.solve_path([pose], self._last().q)
             cost = (
