@@ -117,6 +117,7 @@ SO101 = RobotSpec(
     gripper_damping=JAW_DAMPING,
     gripper_force_limit=JAW_TORQUE,
     collision_boxes=COLLISION_BOXES,
+    decimate_visuals=True,
     self_collision_ignored=(
         ("base_link", "shoulder_link"),
         ("shoulder_link", "upper_arm_link"),

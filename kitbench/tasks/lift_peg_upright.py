@@ -76,8 +76,8 @@ class LiftPegUprightEnv(TabletopEnv):
     # seeds 0-499 within the real arm's joint limits (its wrist turns ~2 rad twice: kitbench/planning/
     # lift_peg_upright_fetch.py). 170 steps (8.5 s) leave room for the recipes' 10 settling steps and a margin; the
     # Panda keeps the reference's 50.
-    # The SO-101's expert (servos at half their no-load speed) needs median 38 steps (max 60) in pd_joint_pos over
-    # seeds 10000-10299 and median 64 (max 79) in pd_joint_delta_pos over seeds 0-99, whose +-0.1 rad steps
+    # The SO-101's expert (servos at half their no-load speed) needs median 37 steps (max 42) in pd_joint_pos over
+    # seeds 10000-10299 and median 61 (max 69) in pd_joint_delta_pos over seeds 0-99, whose +-0.1 rad steps
     # it takes at 60%; 100 steps (5 s) leave room for both and for the recipes' settling steps.
     robot_max_episode_steps: ClassVar[dict[str, int]] = {"fetch": 170, "so101": 100}
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
