@@ -247,14 +247,22 @@ def lerobot_info(root: Path) -> dict:
         raise KitbenchError(f"{path} is unreadable ({exc})") from None
 
 
+def read_columns(files: list[Path], columns: list[str]):
+    """`columns` of the parquet `files`, one pandas frame. Read by path through pyarrow's own file system: pandas'
+    `read_parquet` hands pyarrow a Python file object, whose buffers pyarrow's I/O threads may release after the
+    interpreter began to exit, aborting the process ("terminate called without an active exception", exit 134)."""
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    return pd.concat([pq.read_table(str(f), columns=columns).to_pandas() for f in files])
+
+
 def _episode_tasks(root: Path) -> dict[int, str]:
     """Each episode's task as LeRobot's episode index (`meta/episodes/`) holds it."""
-    import pandas as pd
-
     files = sorted((root / "meta" / "episodes").rglob("*.parquet"))
     if not files:
         return {}
-    table = pd.concat([pd.read_parquet(f, columns=["episode_index", "tasks"]) for f in files])
+    table = read_columns(files, ["episode_index", "tasks"])
     return {int(i): str(next(iter(t))) for i, t in zip(table["episode_index"], table["tasks"], strict=True) if len(t)}
 
 
@@ -262,7 +270,6 @@ def _episodes_from_data(root: Path, known: list[EpisodeInfo]) -> list[EpisodeInf
     """Each episode's seed, success and length from its columns, its task from LeRobot's index; its configuration
     from `known` (a stale episodes file) by seed, else from the task given that seed (`episode_config`)."""
     import numpy as np
-    import pandas as pd
     import pyarrow.parquet as pq
 
     files = sorted((root / "data").rglob("*.parquet"))
@@ -272,7 +279,7 @@ def _episodes_from_data(root: Path, known: list[EpisodeInfo]) -> list[EpisodeInf
     columns = [c for c in wanted if c in pq.read_schema(files[0]).names]
     if CARRIER not in columns:
         raise KitbenchError(f"{root} has no {CARRIER} column: its episodes' seeds are lost")
-    frames = pd.concat([pd.read_parquet(f, columns=columns) for f in files])
+    frames = read_columns(files, columns)
     tasks = _episode_tasks(root)
     by_seed = {e.seed: e for e in known}
     episodes = []

@@ -9,7 +9,7 @@ import numpy as np
 
 from kitbench.envs.interface import as_kitbench
 from kitbench.errors import KitbenchError
-from kitbench.metadata import RecordingInfo
+from kitbench.metadata import RecordingInfo, read_columns
 from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.policies.registry import policy_source
 
@@ -21,15 +21,12 @@ class ReplayPolicy:
     phase = None
 
     def __init__(self, root: str, episode: int | None = None):
-        import pandas as pd
-
         self.root = Path(root)
         files = sorted((self.root / "data").rglob("*.parquet"))
         if not files:
             raise KitbenchError(f"no LeRobot dataset at {root} (no data/*/*.parquet)")
-        frames = pd.concat(
-            [pd.read_parquet(f, columns=["episode_index", "frame_index", "action", "episode_seed"]) for f in files]
-        ).sort_values(["episode_index", "frame_index"])
+        columns = ["episode_index", "frame_index", "action", "episode_seed"]
+        frames = read_columns(files, columns).sort_values(["episode_index", "frame_index"])
         self._actions = {
             int(e): np.stack(g["action"].to_numpy()).astype(np.float32) for e, g in frames.groupby("episode_index")
         }

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.metadata import RecordingInfo, read_episodes
+from kitbench.metadata import RecordingInfo, read_columns, read_episodes
 
 
 class SourceRecording:
@@ -29,13 +29,9 @@ class SourceRecording:
 
     @functools.cached_property
     def _frames(self) -> dict[int, dict]:
-        import pandas as pd
-
         files = sorted((self.root / "data").rglob("*.parquet"))
         columns = ["episode_index", "frame_index", "action", "executed_action", "observation.environment_state"]
-        frames = pd.concat([pd.read_parquet(f, columns=columns) for f in files]).sort_values(
-            ["episode_index", "frame_index"]
-        )
+        frames = read_columns(files, columns).sort_values(["episode_index", "frame_index"])
         by_index = {int(e): g for e, g in frames.groupby("episode_index")}
         by_seed = {}
         for episode in self.episodes:
