@@ -27,7 +27,7 @@ ARM_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wris
 JAW_JOINT = "gripper"
 FIXED_JAW_LINK = "gripper_link"  # the fixed jaw is moulded with the wrist roll's follower horn
 MOVING_JAW_LINK = "moving_jaw_so101_v1_link"
-# The jaw's joint range (rad, the URDF's): -10 degrees presses the jaws together, 100 degrees opens them ~9 cm at the
+# The jaw's joint range (rad, the URDF's): -10 degrees presses the jaws together, 100 degrees opens them ~7 cm at the
 # tips. LeRobot's gripper 0..100 spans the range calibrated on the real arm; kitbench takes it to be this one.
 JAW_RANGE = (-0.174533, 1.74533)
 
@@ -46,6 +46,7 @@ JAW_TORQUE = 0.5 * STALL_TORQUE
 # damping 0.6: up to 13% overshoot); tests/test_so101.py checks the tracking.
 ARM_STIFFNESS = 60.0
 ARM_DAMPING = 1.0
+# the jaw (12 g) swings from open to shut in two control periods (gripper.pos 100 -> 8.6 -> 0.7 with nothing held)
 JAW_STIFFNESS = 10.0
 JAW_DAMPING = 0.2
 
