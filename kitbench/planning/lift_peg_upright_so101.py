@@ -25,11 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
+from kitbench.geometry import tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
 from kitbench.planning.planner import PhasePlanner
-from kitbench.planning.poses import cubic_bezier, interpolate_pose, make_pose, smoothstep
+from kitbench.planning.poses import cubic_bezier, interpolate_pose, make_pose, smoothstep, upright_correction
 from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
 
 
@@ -251,10 +251,7 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
             return self._plan_set_down(start, peg[2, 3] - self.half_length * axis[2])
         if tilt > self.cfg.max_correctable_tilt:
             return self._fail("tilted")
-        rotvec = np.cross(axis, [0.0, 0.0, 1.0])
-        rotvec *= tilt / max(float(np.linalg.norm(rotvec)), 1e-12)
-        goal = make_pose(axis_angle_to_matrix(rotvec) @ peg[:3, :3], peg[:3, 3] + [0.0, 0.0, height_error])
-        target = goal @ np.linalg.inv(peg) @ start.tcp
+        target = upright_correction(peg, goal_height) @ start.tcp  # the hand moves with the peg it holds
         path = self._timed(lambda s: interpolate_pose(start.tcp, target, s), start, min_steps=2)
         return steps_from(path, CLOSED, "place")
 

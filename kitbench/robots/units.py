@@ -79,10 +79,8 @@ class JointUnits:
         out = np.array(action, dtype=np.float64)
         if mode in JOINT_MODES:
             out[:n_arm] /= self.per_radian
-        if self.gripper_percent:
-            low, high = self._jaw_range(spec)
-            target = low + out[n_arm] / 100.0 * (high - low)
-            out[n_arm] = 2.0 * (target - spec.finger_open) / (spec.finger_closed - spec.finger_open) - 1.0
+        if self.gripper_percent:  # 0..100 spans the command's closed (1) .. open (-1): the jaw's range is both's
+            out[n_arm] = 1.0 - out[n_arm] / 50.0
         return out
 
     def action_from_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
@@ -92,10 +90,8 @@ class JointUnits:
         out = np.array(action, dtype=np.float64)
         if mode in JOINT_MODES:
             out[:n_arm] *= self.per_radian
-        if self.gripper_percent:
-            low, high = self._jaw_range(spec)
-            target = self._unclipped(spec, out[n_arm])  # unclipped: a caller may ask how far out of the box
-            out[n_arm] = 100.0 * (target - low) / (high - low)
+        if self.gripper_percent:  # unclipped: a caller may ask how far out of the box an action lies
+            out[n_arm] = 50.0 * (1.0 - out[n_arm])
         return out.astype(np.asarray(action).dtype)
 
     def action_bounds(self, spec: RobotSpec, mode: str, n_arm: int, low, high) -> tuple[np.ndarray, np.ndarray]:
@@ -123,10 +119,6 @@ class JointUnits:
     def _jaw_range(spec: RobotSpec) -> tuple[float, float]:
         """The jaw joint's range, closed to open (the ends of the 0..100 scale)."""
         return spec.finger_closed, spec.finger_open
-
-    @staticmethod
-    def _unclipped(spec: RobotSpec, command: float) -> float:
-        return spec.finger_open + (command + 1.0) * 0.5 * (spec.finger_closed - spec.finger_open)
 
 
 SI = JointUnits("si")
