@@ -5,6 +5,7 @@ recipe; bad input is one line with nothing written."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -32,7 +33,8 @@ def _published(tmp_path: Path, low: float, high: float) -> Path:
     text = PUBLISHED.read_text()
     start = text.index(f"[{CONFIG}]")
     end = text.index("\n[", start)
-    entry = text[start:end].replace("interval = [0.8256, 0.9448]", f"interval = [{low}, {high}]")
+    entry, replaced = re.subn(r"(?m)^interval = \[.*\]$", f"interval = [{low}, {high}]", text[start:end])
+    assert replaced == 1, f"no interval line in the [{CONFIG}] entry"
     path = tmp_path / f"published-{low}-{high}.toml"
     path.write_text(
         entry.replace('suites = ["lift_peg_upright"]', 'suites = ["lift_peg_upright", "lift_peg_upright_heldout"]')
