@@ -1,7 +1,7 @@
-"""Benchmark the AssemblingKits-v1 expert: `python bench/expert_assembling_kits.py [--seeds N] [--workers K]
-[--control-mode M]`.
+"""Benchmark the AssemblingKits-v1 expert: `python bench/expert_assembling_kits.py [--robot panda_wristcam|so101]
+[--seeds N] [--first S] [--workers K] [--control-mode M]`.
 
-Runs seeds 0..N-1 (default settings, `pd_joint_pos`, 200-step limit) and prints the success rate, the steps of
+Runs seeds S..S+N-1 (default settings, `pd_joint_pos`, 200-step limit) and prints the success rate, the steps of
 successful episodes (median / p90 / max), a per-shape table, failures by category and episodes per second.
 """
 
@@ -44,9 +44,9 @@ def failure_category(planner: AssemblingKitsPlanner, info: dict) -> str:
     return f"timeout in {planner.phase}" if info["pos_diff_norm"] > 0.05 else "jammed at the slot"
 
 
-def run_seeds(args: tuple[list[int], str]) -> list[Episode]:
-    seeds, control_mode = args
-    env = gym.make(TASK, control_mode=control_mode)
+def run_seeds(args: tuple[list[int], str, str]) -> list[Episode]:
+    seeds, control_mode, robot = args
+    env = gym.make(TASK, control_mode=control_mode, robot_uids=robot)
     episodes = []
     for seed in seeds:
         obs, info = env.reset(seed=seed)
@@ -70,11 +70,11 @@ def run_seeds(args: tuple[list[int], str]) -> list[Episode]:
     return episodes
 
 
-def run(n_seeds: int, workers: int, control_mode: str) -> list[Episode]:
-    seeds = list(range(n_seeds))
+def run(n_seeds: int, workers: int, control_mode: str, robot: str = "panda_wristcam", first: int = 0) -> list[Episode]:
+    seeds = list(range(first, first + n_seeds))
     if workers <= 1:
-        return run_seeds((seeds, control_mode))
-    chunks = [(seeds[i::workers], control_mode) for i in range(workers)]
+        return run_seeds((seeds, control_mode, robot))
+    chunks = [(seeds[i::workers], control_mode, robot) for i in range(workers)]
     with mp.get_context("spawn").Pool(workers) as pool:
         results = pool.map(run_seeds, chunks)
     return sorted((e for chunk in results for e in chunk), key=lambda e: e.seed)
@@ -109,12 +109,14 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=500, help="run seeds 0..N-1")
+    parser.add_argument("--robot", default="panda_wristcam", choices=("panda_wristcam", "so101"), help="whose expert")
+    parser.add_argument("--seeds", type=int, default=500, help="run N seeds")
+    parser.add_argument("--first", type=int, default=0, help="the first seed (default 0)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument("--control-mode", default="pd_joint_pos", help="pd_joint_pos (default) or pd_joint_delta_pos")
     args = parser.parse_args()
     start = time.perf_counter()
-    episodes = run(args.seeds, args.workers, args.control_mode)
+    episodes = run(args.seeds, args.workers, args.control_mode, args.robot, args.first)
     print(report(episodes, time.perf_counter() - start, args.control_mode))
 
 

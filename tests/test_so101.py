@@ -1,5 +1,6 @@
 """The SO-101: one kinematic model in SAPIEN and mink, drives that track, control modes in the real arm's units,
-its LiftPegUpright variant and expert, and recordings in exactly the layout LeRobot's SO follower declares."""
+its LiftPegUpright and AssemblingKits variants and experts, and recordings in exactly the layout LeRobot's SO
+follower declares."""
 
 from __future__ import annotations
 
@@ -205,13 +206,63 @@ def test_a_recording_has_the_so_followers_features(tmp_path, obs_mode, request):
     assert "joints in degrees, `gripper.pos` 0 (closed) to 100 (open)" in card and "gripper opening (m)" not in card
 
 
-def test_a_task_without_the_so101_names_its_robots(tmp_path):
-    with pytest.raises(KitbenchError, match=r"robot 'so101' is not supported by .*; valid choices: panda"):
-        make_env("AssemblingKits-v1", robot_uids="so101")
+def test_a_robot_a_task_does_not_support_names_its_robots(tmp_path):
+    with pytest.raises(
+        KitbenchError, match=r"robot 'fetch' is not supported by .*; valid choices: panda_wristcam, so101"
+    ):
+        make_env("AssemblingKits-v1", robot_uids="fetch")
     out = tmp_path / "never"
     with pytest.raises(KitbenchError, match="valid choices"):
-        record(RecordConfig.of(task="AssemblingKits-v1", robot="so101", episodes=1, out=out), progress=False)
+        record(RecordConfig.of(task="AssemblingKits-v1", robot="fetch", episodes=1, out=out), progress=False)
     assert not out.exists()
+
+
+def _kit_env(mode: str = "pd_joint_pos"):
+    return make_env(
+        "AssemblingKits-v1", obs_mode="state", control_mode=mode, robot_uids="so101", robot_init_qpos_noise=0.0
+    )
+
+
+def test_the_kit_variant_is_seven_tenths_size():
+    from kitbench.kits import load_episodes, shape_geometry
+    from kitbench.tasks.assembling_kits import ROBOT_VARIANTS
+
+    env = _kit_env()
+    u = env.unwrapped
+    variant = ROBOT_VARIANTS["so101"]
+    board = u.episodes.board
+    assert board.scale == 0.7 and board.size == pytest.approx((0.14, 0.196)) and board.floor == pytest.approx(0.007)
+    for seed in range(5):
+        env.reset(seed=seed)
+        shape = u.shape
+        assert shape.scale == 0.7 and shape.height == pytest.approx(0.021)
+        assert shape.area == pytest.approx(0.49 * shape_geometry(shape.shape_id).area)
+        x, y = u.obj.pose.p[:2]
+        assert variant.spawn_x[0] <= x <= variant.spawn_x[1] and variant.spawn_y[0] <= y <= variant.spawn_y[1]
+        # the episode file's kit, every slot at 0.7 of its place and as turned; the goal on the smaller pocket's floor
+        standard = load_episodes()[u.episode_index]
+        for ours, theirs in zip(u.episode.slots, standard.slots, strict=True):
+            assert ours.pos == pytest.approx((0.7 * theirs.pos[0], 0.7 * theirs.pos[1])) and ours.yaw == theirs.yaw
+        assert u.goal_pos[2] == pytest.approx(0.007)
+    geometry = u.episodes.board_geometry(u.episode_index)
+    assert geometry.scale == 0.7 and geometry.top == pytest.approx(0.014)
+    env.close()
+
+
+def test_the_expert_inserts_the_smaller_shapes():
+    env = _kit_env()
+    u = env.unwrapped
+    for seed in (1, 6, 8):  # a T block, a trapezoid, a kite
+        obs, info = env.reset(seed=seed)
+        planner = u.make_expert()
+        planner.reset(obs, info)
+        for _ in range(u.episode_steps("so101")):
+            target = planner.act(obs)
+            obs, _, terminated, _, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
+            if terminated:
+                break
+        assert info["success"], (seed, u.shape.name, planner.failure)
+    env.close()
 
 
 @pytest.mark.parametrize("mode", ["pd_joint_pos", "pd_ee_delta_pose"])

@@ -60,10 +60,11 @@ SlotPose = tuple[int, float, float, float]  # (shape_id, x, y, yaw)
 Clearance = float | Sequence[float] | None
 
 
-def pocket_clearances(clearance: Clearance = None) -> tuple[float, ...]:
-    """The clearance of each shape id's pocket (m), from any form of `Clearance`."""
+def pocket_clearances(clearance: Clearance = None, scale: float = 1.0) -> tuple[float, ...]:
+    """The clearance of each shape id's pocket (m), from any form of `Clearance` (None: each shape's own, times the
+    kit's `scale`)."""
     if clearance is None:
-        return SLOT_CLEARANCE
+        return SLOT_CLEARANCE if scale == 1.0 else tuple(round(c * scale, 5) for c in SLOT_CLEARANCE)
     if isinstance(clearance, (int, float, np.floating, np.integer)):
         values = (float(clearance),) * NUM_SHAPES
     else:
@@ -86,6 +87,7 @@ class BoardGeometry:
     slots: tuple[SlotPose, ...]
     slot_polygons: tuple[Polygon, ...]  # placed slot outlines, same order as `slots`
     top_polygon: Polygon | MultiPolygon  # board rectangle minus all slot outlines
+    scale: float = 1.0  # the shapes' size against the standard ones' (kits.shapes.shape_geometry)
 
     @property
     def floor(self) -> float:
@@ -147,11 +149,13 @@ def board_rectangle(size: Sequence[float] = BOARD_SIZE) -> Polygon:
     return box(-sx / 2, -sy / 2, sx / 2, sy / 2)
 
 
-def placed_slot_polygons(slots: Iterable[SlotPose], clearance: Clearance = None) -> list[Polygon]:
-    """Slot outlines moved to their kit-frame poses, each cut with its shape's clearance (`Clearance`)."""
-    per_shape = pocket_clearances(clearance)
+def placed_slot_polygons(slots: Iterable[SlotPose], clearance: Clearance = None, scale: float = 1.0) -> list[Polygon]:
+    """Slot outlines moved to their kit-frame poses, each cut with its shape's clearance (`Clearance`), for shapes
+    `scale` times the standard size."""
+    per_shape = pocket_clearances(clearance, scale)
     return [
-        place(slot_outline(int(sid), per_shape[int(sid)]), float(x), float(y), float(yaw)) for sid, x, y, yaw in slots
+        place(slot_outline(int(sid), per_shape[int(sid)], scale), float(x), float(y), float(yaw))
+        for sid, x, y, yaw in slots
     ]
 
 
@@ -190,9 +194,10 @@ def board_geometry(
     size: Sequence[float] = BOARD_SIZE,
     top: float = BOARD_TOP,
     pocket_depth: float = POCKET_DEPTH,
+    scale: float = 1.0,
 ) -> BoardGeometry:
     """Build the board for slots given as (shape_id, x, y, yaw) in the kit frame, each pocket cut with its shape's
-    clearance (`Clearance`; default: every shape's own, SLOT_CLEARANCE).
+    clearance (`Clearance`; default: every shape's own, SLOT_CLEARANCE) for shapes `scale` times the standard size.
 
     Raises ValueError if a slot leaves the board or two slots overlap, since the
     pocket layer would then not be what the episode describes.
@@ -200,8 +205,8 @@ def board_geometry(
     if not 0 < pocket_depth < top:
         raise KitbenchError(f"need 0 < pocket_depth < top, got pocket_depth={pocket_depth}, top={top}")
     slots = tuple((int(s), float(x), float(y), float(w)) for s, x, y, w in slots)
-    per_shape = pocket_clearances(clearance)
-    polys = placed_slot_polygons(slots, per_shape)
+    per_shape = pocket_clearances(clearance, scale)
+    polys = placed_slot_polygons(slots, per_shape, scale)
     problems = layout_problems(polys, size)
     if problems:
         raise KitbenchError("invalid slot layout: " + "; ".join(f"slot {i}: {m}" for i, m in problems))
@@ -216,6 +221,7 @@ def board_geometry(
         slots=slots,
         slot_polygons=tuple(polys),
         top_polygon=top_poly,
+        scale=float(scale),
     )
 
 

@@ -16,7 +16,7 @@ import json
 import math
 import sys
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, NoReturn
@@ -39,7 +39,7 @@ from kitbench.kits.board import (
     pocket_clearances,
 )
 from kitbench.kits.clearance import DEFAULT_CLEARANCE, SLOT_CLEARANCE
-from kitbench.kits.shapes import NUM_SHAPES
+from kitbench.kits.shapes import NUM_SHAPES, check_scale
 
 FORMAT = "kitbench/assembling-kits-episodes"
 # Version 2: `board.clearance` may be one clearance per shape id; the generator writes kitbench's own
@@ -111,6 +111,9 @@ class BoardSpec:
     top: float = BOARD_TOP
     pocket_depth: float = POCKET_DEPTH
     clearance: tuple[float, ...] = SLOT_CLEARANCE  # pocket clearance per shape id (m)
+    # The shapes' size against the standard shapes' (kits.shapes.shape_geometry); the board's size, top and pocket
+    # depth, the clearances and the slot positions are stated at it.
+    scale: float = 1.0
 
     @property
     def floor(self) -> float:
@@ -195,7 +198,28 @@ class EpisodeSet:
     def board_geometry(self, i: int) -> BoardGeometry:
         """Board geometry of episode i (not cached: ~10-30 ms, callers cache per kit)."""
         b = self.board
-        return board_geometry(self.episodes[i].slot_poses(), b.clearance, b.size, b.top, b.pocket_depth)
+        return board_geometry(self.episodes[i].slot_poses(), b.clearance, b.size, b.top, b.pocket_depth, b.scale)
+
+    def scaled(self, factor: float) -> EpisodeSet:
+        """The same kits `factor` times as large in every dimension: the shapes, their pockets' clearances (the
+        same largest seated yaw), the slots' positions and the board; yaws unchanged."""
+        factor = check_scale(factor)
+        if factor == 1.0:
+            return self
+        b = self.board
+        board = replace(
+            b,
+            size=(b.size[0] * factor, b.size[1] * factor),
+            top=b.top * factor,
+            pocket_depth=b.pocket_depth * factor,
+            clearance=tuple(c * factor for c in b.clearance),
+            scale=b.scale * factor,
+        )
+        episodes = tuple(
+            replace(e, slots=tuple(replace(s, pos=(s.pos[0] * factor, s.pos[1] * factor)) for s in e.slots))
+            for e in self.episodes
+        )
+        return EpisodeSet(source=self.source, board=board, episodes=episodes)
 
     def to_dict(self) -> dict[str, Any]:
         b = self.board
@@ -207,6 +231,7 @@ class EpisodeSet:
                 "top": b.top,
                 "pocket_depth": b.pocket_depth,
                 "clearance": list(b.clearance),
+                **({"scale": b.scale} if b.scale != 1.0 else {}),
             },
             "episodes": [e.to_dict() for e in self.episodes],
         }
@@ -407,7 +432,9 @@ def _check_board(c: _Checker, data: dict[str, Any], version: int) -> BoardSpec:
             clearance = c.vec(value, "board.clearance", NUM_SHAPES, lo=0.0)
         else:
             clearance = (c.num(value, "board.clearance", lo=0.0),) * NUM_SHAPES
-    return BoardSpec(size=(size[0], size[1]), top=top, pocket_depth=depth, clearance=clearance)
+    # optional: the shapes' footprint scale (a kit built smaller for a smaller hand)
+    scale = c.num(board["scale"], "board.scale", hi=2.0, positive=True) if "scale" in board else 1.0
+    return BoardSpec(size=(size[0], size[1]), top=top, pocket_depth=depth, clearance=clearance, scale=scale)
 
 
 def _check_slots(c: _Checker, ep: dict[str, Any], path: str) -> tuple[Slot, ...]:
@@ -463,7 +490,7 @@ def _check_colors(
 
 
 def _check_layout(c: _Checker, slots: Sequence[Slot], path: str, board: BoardSpec) -> None:
-    polys = placed_slot_polygons([s.pose for s in slots], board.clearance)
+    polys = placed_slot_polygons([s.pose for s in slots], board.clearance, board.scale)
     problems = layout_problems(polys, board.size)
     if problems:
         j, msg = problems[0]

@@ -43,10 +43,11 @@ def fingertip_clearance(center, angle: float, obstacles: list[Polygon], swept: b
     return min((p.distance(o) for p in pads for o in obstacles), default=1.0)
 
 
-def seated_outlines(episode) -> list[Polygon]:
-    """Outlines of the shapes seated in the kit: 2 cm proud of the board, fingertips must not come down on them."""
+def seated_outlines(episode, scale: float = 1.0) -> list[Polygon]:
+    """Outlines of the shapes seated in the kit (their footprint `scale` times the standard): 2 cm proud of the
+    board, fingertips must not come down on them."""
     slots = [episode.slots[i] for i in episode.obj_in_place]
-    return [place(shape_geometry(s.shape_id).outline, s.pos[0], s.pos[1], s.yaw) for s in slots]
+    return [place(shape_geometry(s.shape_id, scale).outline, s.pos[0], s.pos[1], s.yaw) for s in slots]
 
 
 def pick_obstacles(episode, board, shape_z: float) -> list[Polygon]:
@@ -54,4 +55,4 @@ def pick_obstacles(episode, board, shape_z: float) -> list[Polygon]:
     shape on the table (the fingertips go below the board top), the seated shapes for a shape on the board."""
     if shape_z < board.top / 2:
         return [box(-board.size[0] / 2, -board.size[1] / 2, board.size[0] / 2, board.size[1] / 2)]
-    return seated_outlines(episode)
+    return seated_outlines(episode, board.scale)

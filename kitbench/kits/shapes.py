@@ -231,6 +231,7 @@ class ShapeGeometry:
     area: float
     grasp_angle: float  # finger closing direction (rad, shape frame) with the narrowest grasp
     grasp_width: float  # outline width across the pads at grasp_angle (both for DEFAULT_PAD_WIDTH pads)
+    scale: float = 1.0  # the size against the standard shape's (footprint and height)
 
 
 def check_shape_id(shape_id: object) -> int:
@@ -262,11 +263,30 @@ def shape_outline(shape_id: int) -> Polygon:
     return _parts_and_outline(check_shape_id(shape_id))[1]
 
 
+def check_scale(scale: object) -> float:
+    """Validate a footprint scale (a kit built smaller for a smaller hand), naming the bad value."""
+    if isinstance(scale, (bool, np.bool_)) or not isinstance(scale, (int, float, np.floating, np.integer)):
+        raise KitbenchError(f"kit scale must be a number in (0, 2], got {scale!r}")
+    if not 0.0 < float(scale) <= 2.0:
+        raise KitbenchError(f"kit scale must be a number in (0, 2], got {scale!r}")
+    return float(scale)
+
+
 @cache
-def _cached_geometry(shape_id: int) -> ShapeGeometry:
+def _scaled_parts_and_outline(shape_id: int, scale: float) -> tuple[tuple[np.ndarray, ...], Polygon]:
+    """The convex parts and outline with their footprint scaled about the centroid (the origin)."""
     parts, outline = _parts_and_outline(shape_id)
-    pieces = [extrude_convex(p, 0.0, SHAPE_HEIGHT) for p in parts]
-    vv, vf = extrude_mesh(outline, 0.0, SHAPE_HEIGHT)
+    if scale == 1.0:
+        return parts, outline
+    return tuple(p * scale for p in parts), affinity.scale(outline, scale, scale, origin=(0.0, 0.0))
+
+
+@cache
+def _cached_geometry(shape_id: int, scale: float = 1.0) -> ShapeGeometry:
+    parts, outline = _scaled_parts_and_outline(shape_id, scale)
+    height = SHAPE_HEIGHT * scale
+    pieces = [extrude_convex(p, 0.0, height) for p in parts]
+    vv, vf = extrude_mesh(outline, 0.0, height)
     coords = np.vstack([np.asarray(outline.exterior.coords)] + [np.asarray(r.coords) for r in outline.interiors])
     angle, width = _narrowest_grasp(outline, DEFAULT_PAD_WIDTH)
     return ShapeGeometry(
@@ -274,7 +294,7 @@ def _cached_geometry(shape_id: int) -> ShapeGeometry:
         name=SHAPE_NAMES[shape_id],
         symmetry=SYMMETRY[shape_id],
         outline=outline,
-        height=SHAPE_HEIGHT,
+        height=height,
         convex_polygons=parts,
         convex_pieces=pieces,
         visual_vertices=vv,
@@ -283,12 +303,14 @@ def _cached_geometry(shape_id: int) -> ShapeGeometry:
         area=float(outline.area),
         grasp_angle=angle,
         grasp_width=width,
+        scale=scale,
     )
 
 
-def shape_geometry(shape_id: int) -> ShapeGeometry:
-    """Cached geometry of one shape; ValueError for ids outside 0..19 or non-ints."""
-    return _cached_geometry(check_shape_id(shape_id))
+def shape_geometry(shape_id: int, scale: float = 1.0) -> ShapeGeometry:
+    """Cached geometry of one shape, `scale` times the standard one in every dimension; KitbenchError for ids
+    outside 0..19 or non-ints, or a scale outside (0, 2]."""
+    return _cached_geometry(check_shape_id(shape_id), check_scale(scale))
 
 
 def all_shapes() -> list[ShapeGeometry]:
@@ -313,19 +335,21 @@ def offset_outline(outline: Polygon, clearance: float) -> Polygon:
 
 
 @cache
-def _cached_slot(shape_id: int, clearance: float) -> Polygon:
-    return offset_outline(shape_outline(shape_id), clearance)
+def _cached_slot(shape_id: int, clearance: float, scale: float) -> Polygon:
+    return offset_outline(_scaled_parts_and_outline(shape_id, scale)[1], clearance)
 
 
-def slot_outline(shape_id: int, clearance: float | None = None) -> Polygon:
-    """The pocket outline for a shape in the shape frame: its exterior grown by `clearance` per side (default: the
-    shape's own, `clearance.SLOT_CLEARANCE`)."""
+def slot_outline(shape_id: int, clearance: float | None = None, scale: float = 1.0) -> Polygon:
+    """The pocket outline for a shape (footprint `scale` times the standard) in the shape frame: its exterior grown
+    by `clearance` per side (default: the shape's own, `clearance.SLOT_CLEARANCE`, times `scale`: the same largest
+    seated yaw)."""
     shape_id = check_shape_id(shape_id)
+    scale = check_scale(scale)
     if clearance is None:
-        clearance = SLOT_CLEARANCE[shape_id]
+        clearance = SLOT_CLEARANCE[shape_id] * scale
     if not clearance >= 0:
         raise KitbenchError(f"clearance must be >= 0, got {clearance!r}")
-    return _cached_slot(shape_id, float(clearance))
+    return _cached_slot(shape_id, float(clearance), scale)
 
 
 def place(poly: Polygon, x: float, y: float, yaw: float) -> Polygon:
@@ -431,6 +455,7 @@ __all__ = [
     "SYMMETRY",
     "ShapeGeometry",
     "all_shapes",
+    "check_scale",
     "check_shape_id",
     "grasp_width",
     "grasp_width_at",

@@ -51,22 +51,44 @@ from kitbench.geometry import (
 )
 from kitbench.kits import shape_geometry
 from kitbench.kits.fingers import CLEAR_ENOUGH, fingertip_clearance, pick_obstacles, seated_outlines
-from kitbench.kits.shapes import grasp_width_at
+from kitbench.kits.shapes import grasp_width_at, place
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
 from kitbench.planning.planner import PhasePlanner
 from kitbench.planning.poses import HAND_DOWN, make_pose, rot_z
 from kitbench.tasks.assembling_kits import yaw_error
 
-MAX_OPENING = 0.07  # m, the widest grasp the planner uses (the Panda opens 8 cm)
 CLOSING_SAMPLES = 36  # closing directions tried, over 180 degrees
 
 
-@lru_cache(maxsize=32)
-def closing_widths(shape_id: int) -> tuple[tuple[float, float], ...]:
-    """(angle in the shape frame, opening needed) for closing directions through the shape's centroid."""
-    outline = shape_geometry(shape_id).outline
+@lru_cache(maxsize=64)
+def closing_widths(shape_id: int, scale: float = 1.0) -> tuple[tuple[float, float], ...]:
+    """(angle in the shape frame, opening needed) for closing directions through the centroid of the shape, its
+    footprint `scale` times the standard."""
+    outline = shape_geometry(shape_id, scale).outline
     angles = np.arange(CLOSING_SAMPLES) * math.pi / CLOSING_SAMPLES
     return tuple((float(a), grasp_width_at(outline, float(a))) for a in angles)
+
+
+FACE_TOLERANCE = 0.0005  # m: outline within this of its extreme along the closing direction bears on a jaw
+
+
+@lru_cache(maxsize=64)
+def jaw_faces(shape_id: int, scale: float = 1.0) -> tuple[tuple[float, float], ...]:
+    """For each closing direction of `closing_widths`, (behind, ahead): how wide (m, across the direction) the
+    outline bears on a flat jaw at its extreme behind and ahead along the direction: ~0 at a corner."""
+    outline = shape_geometry(shape_id, scale).outline
+    boundary = outline.exterior
+    points = np.asarray([boundary.interpolate(d).coords[0] for d in np.arange(0.0, boundary.length, 2e-4)])
+    out = []
+    for angle in np.arange(CLOSING_SAMPLES) * math.pi / CLOSING_SAMPLES:
+        u = np.array([math.cos(angle), math.sin(angle)])
+        along, across = points @ u, points @ np.array([-u[1], u[0]])
+        spans = []
+        for side in (along.min(), along.max()):
+            touching = across[np.abs(along - side) <= FACE_TOLERANCE]
+            spans.append(float(touching.max() - touching.min()))
+        out.append((spans[0], spans[1]))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -95,6 +117,47 @@ class AssemblingKitsPlannerConfig:
     # None: fully shut.
     grip_squeeze: float | None = 0.005
     speed_factor: float = 1.0
+    max_opening: float = 0.07  # m, the widest grasp the planner uses (the Panda opens 8 cm)
+    open_command: float = OPEN  # the gripper command of an open hand (-1: fully open)
+    # Whether the planner counts the hand's turn by the arm's swing about its base against the wrist's limits: a
+    # five-joint arm's downward hand turns with its shoulder pan one to one (the Panda's seven joints share it).
+    wrist_follows_pan: bool = False
+    # Whether the align and insert moves aim the hand's command, not the hand: arms whose joints lag their targets
+    # under load (position servos without gravity compensation) leave the hand a few millimetres short of every
+    # target, so re-aiming at the measured error must move the command by that error.
+    aim_by_command: bool = False
+    # Whether the hand levels a shape it holds tilted before lowering it in: a seven-joint arm can tilt its hand any
+    # way; a five-joint arm's downward hand cannot tilt across its arm's plane, and keeps its hand straight down.
+    level_held: bool = True
+    # A fixed jaw (RobotSpec.fixed_jaw) grasps across faces at least this long on both sides where the shape has
+    # such a direction (m): pushed against a corner, a shape turns in the jaw.
+    min_jaw_face: float = 0.006
+
+
+# The SO-101's (kitbench/robots/so101.py), for its kit at 0.7 scale (shapes 2.1 cm tall, standing 1.4 cm proud of
+# the board when seated): its TCP is 23 mm from the jaw's tip, so 3 cm above the shape's bottom keeps the tip 7 mm up;
+# carried 2 cm above the board and approached from 4 cm above the grasp, the hand stays low enough for its wrist to
+# point straight down over the whole kit (higher, the wrist flex ran into its 95-degree limit near the base). Its
+# jaw opens to 56 degrees (gripper.pos 60) and squeezes 0.05 rad past where it stopped (0.1 or more squeezes the
+# pointed shapes out of the jaw: 83% and 31% of 100 seeds against 85%), after 5 steps to close (its servo sweeps
+# ~40 degrees). Its servos run at half their no-load speed and lag their targets by 1-3 mm under load, which the
+# align and insert moves aim out (`aim_by_command`); the wrist's turn is predicted from the arm's swing to within
+# ~0.15 rad, hence the wider margin from its limits (measured: docs/robots.md).
+SO101_CONFIG = AssemblingKitsPlannerConfig(
+    grasp_height=0.03,
+    approach_height=0.04,
+    carry_clearance=0.02,
+    grip_squeeze=0.05,
+    close_steps=5,
+    speed_factor=0.5,
+    max_opening=0.05,
+    open_command=-0.2,
+    wrist_follows_pan=True,
+    joint7_margin=0.25,
+    aim_by_command=True,
+    level_held=False,
+)
+ROBOT_CONFIGS = {"so101": SO101_CONFIG}
 
 
 def signed_yaw_options(delta: float, symmetry: float) -> list[float]:
@@ -133,9 +196,25 @@ class AssemblingKitsPlanner(PhasePlanner):
         "failed",
     )
 
+    def __init__(self, env, config: AssemblingKitsPlannerConfig | None = None):
+        super().__init__(env, config)
+        self.fixed_jaw = self.env.robot_spec.fixed_jaw
+        # the wrist roll: the arm's last joint, which turns a downward hand about the vertical, one to one
+        self.wrist = self.n_arm - 1
+        q = self.env.robot.arm_qpos().astype(np.float64)
+        turned = q.copy()
+        turned[self.wrist] += 0.1
+        self.wrist_sign = float(
+            np.sign(wrap_angle(planar_yaw(self.ik.fk(turned)[:3, :3]) - planar_yaw(self.ik.fk(q)[:3, :3])))
+        )
+
     @classmethod
     def default_config(cls) -> AssemblingKitsPlannerConfig:
         return AssemblingKitsPlannerConfig()
+
+    @classmethod
+    def robot_config(cls, robot_uid: str) -> AssemblingKitsPlannerConfig:
+        return ROBOT_CONFIGS.get(robot_uid) or cls.default_config()
 
     def on_reset(self) -> None:
         self.align_corrections = 0
@@ -144,8 +223,9 @@ class AssemblingKitsPlanner(PhasePlanner):
 
     @property
     def q7_limits(self) -> np.ndarray:
-        """Joint 7's (lower, upper) limits, rad: the wrist turn the grasp and the goal yaw must fit in."""
-        return self.ik.limits[6]
+        """The wrist roll's (lower, upper) limits, rad (the Panda's joint 7): the wrist turn the grasp and the goal
+        yaw must fit in."""
+        return self.ik.limits[self.wrist]
 
     # -- paths ----------------------------------------------------------------------------------------------------
     def _move(
@@ -173,10 +253,21 @@ class AssemblingKitsPlanner(PhasePlanner):
             self.failure = self.failure or "ik"
         return steps_from(path, gripper, phase)
 
-    def _joint7_after(self, start: Step, turn: float) -> float:
-        """Joint 7 after turning the (downward) hand by `turn` about the vertical: the two are locked 1:1 with
-        opposite signs (joint 7's axis points down along the hand)."""
-        return float(start.q[6] - turn)
+    def _joint7_after(self, start: Step, turn: float, xy: np.ndarray) -> float:
+        """The wrist roll after turning the (downward) hand by `turn` about the vertical on the way to `xy`: the
+        two are locked 1:1 (the Panda's joint 7 with opposite signs: its axis points down along the hand), less
+        what the arm's swing about its base turns the hand (`wrist_follows_pan`)."""
+        return float(start.q[self.wrist] + self.wrist_sign * (turn - self._pan_turn(start.tcp[:2, 3], xy)))
+
+    def _pan_turn(self, a: np.ndarray, b: np.ndarray) -> float:
+        """How far the hand turns about the vertical when the arm swings from over `a` to over `b` (world xy):
+        the change of their bearing from the base, for an arm whose shoulder pan turns its hand as much as its
+        wrist does (`wrist_follows_pan`); 0 where the planner leaves that to IK (the Panda's seven joints)."""
+        if not self.cfg.wrist_follows_pan:
+            return 0.0
+        base = self.ik.base[:2, 3]
+        da, db = np.asarray(a) - base, np.asarray(b) - base
+        return wrap_angle(math.atan2(db[1], db[0]) - math.atan2(da[1], da[0]))
 
     def _q7_ok(self, q7: float) -> bool:
         lo, hi = self.q7_limits
@@ -206,21 +297,21 @@ class AssemblingKitsPlanner(PhasePlanner):
                 return self._fail("dropped")
             return self._plan_align()
         if finished == "insert":
-            return hold(self._last(), self.cfg.release_steps, gripper=OPEN, phase="release")
+            return hold(self._last(), self.cfg.release_steps, gripper=self.cfg.open_command, phase="release")
         if finished == "release":
             target = self._last().tcp.copy()
             target[2, 3] += self.cfg.retreat_height
-            return self._move(self._last(), target, 0.0, OPEN, "retreat")
+            return self._move(self._last(), target, 0.0, self.cfg.open_command, "retreat")
         return self._fail(self.failure or "done") if finished != "retreat" else hold(self._last(), 1, phase="retreat")
 
     def _choose_grasp(self, start: Step) -> tuple[float, float]:
         """(hand turn to the grasp, shape turn to the goal), both signed.
 
-        Over closing directions (through the centroid, opening at most `MAX_OPENING`), the two hand yaws that
-        close along each, and the goal yaws equivalent under the shape's symmetry: keep joint 7 inside its limits
-        at the grasp and at the goal; prefer fingers clear of obstacles (up to `clear_enough`) where they come down
-        and close at the grasp and where they come down beside the slot, then the least wrist rotation, then the
-        narrowest opening."""
+        Over closing directions (through the centroid, opening at most `max_opening`), the two hand yaws that
+        close along each, and the goal yaws equivalent under the shape's symmetry: keep the wrist roll inside its
+        limits at the grasp and at the goal; prefer a fixed jaw (RobotSpec.fixed_jaw) against a face, then fingers
+        clear of obstacles (up to `clear_enough`) where they come down and close at the grasp and where they come
+        down beside the slot, then the least wrist rotation, then the narrowest opening."""
         obj = self._object_pose()
         obj_yaw = planar_yaw(obj[:3, :3])
         shape = self.env.shape
@@ -229,11 +320,13 @@ class AssemblingKitsPlanner(PhasePlanner):
         rotations = signed_yaw_options(delta, shape.symmetry)
         episode = self.env.episode
         around = pick_obstacles(episode, self.env.episodes.board, float(obj[2, 3]))
-        seated = seated_outlines(episode)
+        seated = seated_outlines(episode, shape.scale)
         goal_xy = self.env.goal_pos[:2]
         best = None
-        for angle, opening in closing_widths(shape.shape_id):
-            if opening > MAX_OPENING:
+        widths = closing_widths(shape.shape_id, shape.scale)
+        faces = jaw_faces(shape.shape_id, shape.scale)
+        for (angle, opening), (behind, ahead) in zip(widths, faces, strict=True):
+            if opening > self.cfg.max_opening:
                 continue
             closing = obj_yaw + angle
             pick_clear = min(fingertip_clearance(obj[:2, 3], closing, around, swept=True), self.cfg.clear_enough)
@@ -243,15 +336,26 @@ class AssemblingKitsPlanner(PhasePlanner):
                 clear = round(min(pick_clear, goal_clear), 3)
                 for m in (-2, -1, 0, 1, 2):
                     turn = base + m * math.pi
-                    q7 = self._joint7_after(start, turn)
-                    if not (self._q7_ok(q7) and self._q7_ok(q7 - rotation)):
+                    q7 = self._joint7_after(start, turn, obj[:2, 3])
+                    at_goal = q7 + self.wrist_sign * (rotation - self._pan_turn(obj[:2, 3], goal_xy))
+                    if not (self._q7_ok(q7) and self._q7_ok(at_goal)):
                         continue
-                    key = (clear, -(abs(turn) + abs(rotation)) - 5.0 * opening)
+                    face = self._fixed_face(start, turn, closing, behind, ahead)
+                    key = (face, clear, -(abs(turn) + abs(rotation)) - 5.0 * opening)
                     if best is None or key > best[0]:
                         best = (key, turn, rotation)
         if best is None:  # no direction fits the opening or joint 7: fall back on the narrowest, shortest way
             return wrap_angle(obj_yaw + shape.grasp_angle + math.pi / 2 - hand_yaw), delta
         return best[1], best[2]
+
+    def _fixed_face(self, start: Step, turn: float, closing: float, behind: float, ahead: float) -> float:
+        """How much of a face (m, up to `min_jaw_face`) the fixed jaw meets after turning the hand by `turn` to close
+        along `closing` (its face lies behind the TCP's y, where `_jaw_offset` puts it); 0 for two fingers."""
+        if not self.fixed_jaw:
+            return 0.0
+        jaw_y = (rot_z(turn) @ start.tcp[:3, :3])[:2, 1]
+        face = behind if float(jaw_y @ [math.cos(closing), math.sin(closing)]) > 0 else ahead
+        return round(min(face, self.cfg.min_jaw_face), 3)
 
     def _plan_approach(self, start: Step | None = None) -> list[Step]:
         self.grasp_attempts += 1
@@ -260,18 +364,30 @@ class AssemblingKitsPlanner(PhasePlanner):
         obj = self._object_pose()
         rotation = rot_z(turn) @ start.tcp[:3, :3]
         rotation = rot_z(planar_yaw(rotation)) @ HAND_DOWN  # exactly downward, at the chosen yaw
-        grasp = make_pose(rotation, [obj[0, 3], obj[1, 3], obj[2, 3] + self.cfg.grasp_height])
+        xy = obj[:2, 3] + self._jaw_offset(obj, rotation[:2, 1])
+        grasp = make_pose(rotation, [xy[0], xy[1], obj[2, 3] + self.cfg.grasp_height])
         above = grasp.copy()
         above[2, 3] += self.cfg.approach_height
-        steps = self._move(start, above, turn, OPEN, "approach")
-        steps += self._move(steps[-1], grasp, 0.0, OPEN, "descend")
+        opened = self.cfg.open_command
+        steps = self._move(start, above, turn, opened, "approach")
+        steps += self._move(steps[-1], grasp, 0.0, opened, "descend")
         return steps
 
+    def _jaw_offset(self, obj: np.ndarray, closing: np.ndarray) -> np.ndarray:
+        """Where the TCP goes from the shape's centroid (xy): nowhere for two fingers closing on it together; for a
+        fixed jaw (its face is the TCP, `closing` its TCP y, towards the moving jaw), onto the shape's outline
+        where the fixed jaw's face meets it, so that the moving jaw presses the shape against it unmoved."""
+        if not self.fixed_jaw:
+            return np.zeros(2)
+        outline = place(self.env.shape.outline, 0.0, 0.0, planar_yaw(obj[:3, :3]))
+        points = np.asarray(outline.exterior.coords)
+        return float(np.min(points @ closing)) * closing
+
     def _plan_regrasp(self) -> list[Step]:
-        opened = hold(self._last(), 1, gripper=OPEN, phase="regrasp")
+        opened = hold(self._last(), 1, gripper=self.cfg.open_command, phase="regrasp")
         up = opened[0].tcp.copy()
         up[2, 3] += 0.03
-        steps = opened + self._move(opened[0], up, 0.0, OPEN, "regrasp")
+        steps = opened + self._move(opened[0], up, 0.0, self.cfg.open_command, "regrasp")
         return steps + self._plan_approach(steps[-1])
 
     def _grip_command(self) -> float:
@@ -280,7 +396,8 @@ class AssemblingKitsPlanner(PhasePlanner):
         if self.cfg.grip_squeeze is None:
             return CLOSED
         spec = self.env.robot_spec
-        target = self.env.robot.gripper_opening() / 2 - self.cfg.grip_squeeze
+        # one finger joint's position: half a parallel gripper's opening, or a single jaw's angle
+        target = self.env.robot.gripper_opening() / len(spec.finger_joints) - self.cfg.grip_squeeze
         fraction = (target - spec.finger_open) / (spec.finger_closed - spec.finger_open)
         return float(np.clip(2.0 * fraction - 1.0, OPEN, CLOSED))
 
@@ -301,16 +418,32 @@ class AssemblingKitsPlanner(PhasePlanner):
         tilted, it would turn as it settles (its measured yaw is that of its tilted axis)."""
         yaw = planar_yaw(obj[:3, :3]) + rotation
         goal = make_pose(rot_z(yaw), [self.env.goal_pos[0], self.env.goal_pos[1], shape_bottom_z])
-        return goal @ (np.linalg.inv(obj) @ tcp)
+        if self.cfg.level_held:
+            return goal @ (np.linalg.inv(obj) @ tcp)
+        # the hand straight down, turned by `rotation`, holding the shape where it holds it now (its tilt kept)
+        offset = rot_z(rotation)[:2, :2] @ (tcp[:2, 3] - obj[:2, 3])
+        hand = rot_z(planar_yaw(tcp[:3, :3]) + rotation) @ HAND_DOWN
+        position = [goal[0, 3] + offset[0], goal[1, 3] + offset[1], shape_bottom_z + tcp[2, 3] - obj[2, 3]]
+        return make_pose(hand, position)
+
+    def _aimed(self, start: Step, desired: np.ndarray, tcp: np.ndarray) -> np.ndarray:
+        """The command that brings the hand to `desired`: itself, or (`aim_by_command`) moved by how far the hand
+        now stands from its last command (in the hand's frame, its turn too), a lag that holds while the load does."""
+        if not self.cfg.aim_by_command:
+            return desired
+        return desired @ np.linalg.inv(tcp) @ self.ik.fk(start.q)
 
     def _plan_transport(self) -> list[Step]:
         """Carry the shape over its slot, turning it to the goal yaw, measured: the turn is recomputed from the
-        shape's yaw now (it may have turned in the hand), keeping the direction chosen at the grasp."""
+        shape's yaw now (it may have turned in the hand), keeping the direction chosen at the grasp unless the
+        wrist's limits no longer allow it."""
         start = self._last()
         obj, tcp = self._object_pose(), self._tcp()
         delta = wrap_angle(self.env.goal_rot - planar_yaw(obj[:3, :3]))
-        options = signed_yaw_options(delta, self.env.shape.symmetry)
-        rotation = min(options, key=lambda r: abs(r - self.turn_at_goal))
+        options = sorted(signed_yaw_options(delta, self.env.shape.symmetry), key=lambda r: abs(r - self.turn_at_goal))
+        pan = self._pan_turn(tcp[:2, 3], self.env.goal_pos[:2])
+        fits = [r for r in options if self._q7_ok(start.q[self.wrist] + self.wrist_sign * (r - pan))]
+        rotation = (fits or options)[0]
         carry_bottom = self.env.episodes.board.top + self.cfg.carry_clearance
         target = self._goal_tcp(obj, tcp, rotation, carry_bottom)
         steps = self._move(start, target, rotation, self.grip, "transport")
@@ -331,11 +464,11 @@ class AssemblingKitsPlanner(PhasePlanner):
             self.align_corrections += 1
             delta = wrap_angle(self.env.goal_rot - obj_yaw)
             rotation = min(signed_yaw_options(delta, self.env.shape.symmetry), key=abs)
-            target = self._goal_tcp(obj, tcp, rotation, obj[2, 3])
+            target = self._aimed(start, self._goal_tcp(obj, tcp, rotation, obj[2, 3]), tcp)
             steps = self._move(start, target, rotation, self.grip, "align")
             return steps + hold(steps[-1], self.cfg.settle_steps)
         floor = self.env.floor
-        target = self._goal_tcp(obj, tcp, 0.0, floor + self.cfg.release_height)
+        target = self._aimed(start, self._goal_tcp(obj, tcp, 0.0, floor + self.cfg.release_height), tcp)
         return self._move(start, target, 0.0, self.grip, "insert", speed=self.cfg.insert_speed)
 
 

@@ -51,7 +51,7 @@ class PhasePlanner(ABC):
 
     def __init__(self, env, config=None):
         self.env = env.unwrapped
-        self.cfg = config or self.default_config()
+        self.cfg = config or self.robot_config(self.env.robot_uid)
         self.dt = self.env.control_timestep
         spec = self.env.robot_spec
         self.n_arm = len(spec.arm_joints)
@@ -72,6 +72,12 @@ class PhasePlanner(ABC):
     @abstractmethod
     def default_config(cls):
         """The config used when none is given: each task's motion has its own tunables (and measured defaults)."""
+
+    @classmethod
+    def robot_config(cls, robot_uid: str):
+        """The config used for `robot_uid` when none is given: `default_config()`, unless a planner tunes its
+        motion per robot."""
+        return cls.default_config()
 
     def target_actor(self):
         """The actor the expert manipulates: the grasp checks and the object pose measured between phases read

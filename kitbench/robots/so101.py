@@ -108,6 +108,7 @@ SO101 = RobotSpec(
     arm_acceleration_limits=(SERVO_ACCELERATION,) * 5,
     # the fixed jaw closes along its link's +x (towards the moving jaw), the moving jaw along its link's -x
     finger_closing_axes=((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0)),
+    fixed_jaw=True,
     ee_position_bound=0.5,
     cameras=(FRONT_CAMERA, WRIST_CAMERA),
     task_cameras=False,

@@ -63,6 +63,9 @@ class RobotSpec:
     arm_acceleration_limits: tuple[float, ...]  # rad/s^2
     # For each finger link, the direction in its own frame along which it closes (grasp detection).
     finger_closing_axes: tuple[tuple[float, float, float], ...] = ((0.0, -1.0, 0.0), (0.0, 1.0, 0.0))
+    # One jaw fixed to the hand (the TCP on its face) and one moving onto it, instead of two fingers closing on the
+    # TCP together: a held object's centre lies off the TCP by its half-width, along the TCP's y.
+    fixed_jaw: bool = False
     ee_position_bound: float = 1.0  # m: `pd_ee_pose`'s position box around the base frame's origin
     body_joints: tuple[str, ...] = ()  # position-driven joints outside the arm, delta-commanded
     body_ready: tuple[float, ...] = ()

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from functools import lru_cache
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,25 @@ ROT_TOLERANCE = math.radians(4.0)
 IN_SLOT_TOLERANCE = 0.003  # m
 SPAWN_X = (-0.1, 0.1)
 SPAWN_Y = (-0.182, 0.182)
+
+
+@dataclass(frozen=True)
+class KitVariant:
+    """One robot's build of the task: its kits' footprint (`EpisodeSet.scaled`: shapes, pockets, slot positions and
+    board; heights, yaws and the success criteria unchanged) and where its loose shape spawns."""
+
+    scale: float = 1.0
+    spawn_x: tuple[float, float] = SPAWN_X
+    spawn_y: tuple[float, float] = SPAWN_Y
+
+
+# The SO-101's kit is 0.7 of the standard one (board 14 x 19.6 cm): its jaw spans at most ~5 cm and holds a shape
+# it closes on across 3.2 cm or less (the LiftPegUpright peg's 2.5 cm), while the standard shapes' narrowest
+# closing spans run to 4.3 cm (the five-pointed star) and 9 of the 20 need more than 3.5 cm every way; at 0.7 the
+# widest is 3.0 cm. Pockets keep each shape's largest seated yaw (clearances 0.48-1.4 mm). Its loose shape lies
+# within 3 cm past the board's middle and 15 cm to either side, 12-26 cm in front of the base and to the side of
+# it, where a downward jaw reaches the table (kitbench/robots/so101.py).
+ROBOT_VARIANTS = {"so101": KitVariant(scale=0.7, spawn_x=(-0.07, 0.03), spawn_y=(-0.15, 0.15))}
 SPAWN_MARGIN = 0.004  # m kept between a spawned shape and any pocket or the board edge
 SHAPE_DENSITY = 600.0  # kg/m^3, a plastic-like block of 12-27 g
 # PhysX pairs two materials at the lower friction. At 0.5 a shape dropped 10 degrees off its slot yaw slides and
@@ -84,15 +104,15 @@ def yaw_error(yaw: float, goal_yaw: float, symmetry: float) -> float:
 
 
 @lru_cache(maxsize=8)
-def _load(path: str | None) -> EpisodeSet:
-    return load_episodes(path)
+def _load(path: str | None, scale: float = 1.0) -> EpisodeSet:
+    return load_episodes(path) if scale == 1.0 else _load(path).scaled(scale)
 
 
 @register_env("AssemblingKits-v1", max_episode_steps=200)
 class AssemblingKitsEnv(TabletopEnv):
     """Insert a misplaced shape into its slot in a kit (200 control steps, robot with a wrist camera)."""
 
-    supported_robots = ("panda_wristcam",)
+    supported_robots = ("panda_wristcam", "so101")
     max_dense_reward = MAX_DENSE_REWARD
     default_qpos_noise = 0.02
     # What the expert's motion depends on, each in a form a policy can learn from (measured: docs/learnability.md).
@@ -117,11 +137,21 @@ class AssemblingKitsEnv(TabletopEnv):
     expert = "kitbench.planning.assembling_kits:AssemblingKitsPlanner"
 
     def __init__(self, *args, episode_file: str | Path | None = None, **kwargs):
-        self.episodes = _load(str(episode_file) if episode_file is not None else None)
+        self._episode_file = str(episode_file) if episode_file is not None else None
         self.episode: Episode  # chosen by every reset (the first runs in TabletopEnv.__init__)
         self.episode_index = -1
         self._boards: OrderedDict = OrderedDict()  # episode index -> BoardGeometry, least recently used last
         super().__init__(*args, **kwargs)
+
+    @property
+    def kit_variant(self) -> KitVariant:
+        """This robot's build of the task (`ROBOT_VARIANTS`; the standard one for the Panda)."""
+        return ROBOT_VARIANTS.get(self.robot_uid, KitVariant())
+
+    @cached_property
+    def episodes(self) -> EpisodeSet:
+        """The episode file's kits, at this robot's variant's scale."""
+        return _load(self._episode_file, self.kit_variant.scale)
 
     def task_description(self) -> str:
         name = self.shape.name.replace("_", " ")
@@ -192,7 +222,7 @@ class AssemblingKitsEnv(TabletopEnv):
         self.static_shapes = []
         for i in episode.obj_in_place:
             slot = episode.slots[i]
-            geom = shape_geometry(slot.shape_id)
+            geom = shape_geometry(slot.shape_id, self.episodes.board.scale)
             pose = sapien.Pose([slot.pos[0], slot.pos[1], floor], yaw_quat(slot.yaw))
             visual = (geom.visual_vertices, geom.visual_faces) if render else None
             self.static_shapes.append(
@@ -209,7 +239,7 @@ class AssemblingKitsEnv(TabletopEnv):
                 )
             )
         target = episode.target_slot
-        geom = shape_geometry(target.shape_id)
+        geom = shape_geometry(target.shape_id, self.episodes.board.scale)
         visual = (geom.visual_vertices, geom.visual_faces) if render else None
         material = physx.PhysxMaterial(SHAPE_FRICTION, SHAPE_FRICTION, 0.0)
         self.obj = build_convex_actor(
@@ -259,7 +289,7 @@ class AssemblingKitsEnv(TabletopEnv):
 
     def _spawn_pose(self, rng) -> tuple[float, float, float, float]:
         """A flat pose for the loose shape: on the board top clear of every pocket, or on the table clear of
-        the board, inside the reference spawn region (rejection sampling, deterministic given the rng)."""
+        the board, inside the variant's spawn region (rejection sampling, deterministic given the rng)."""
         spec = self.episodes.board
         board_rect = shapely_box(-spec.size[0] / 2, -spec.size[1] / 2, spec.size[0] / 2, spec.size[1] / 2)
         board = self._board(self.episode_index)
@@ -267,8 +297,9 @@ class AssemblingKitsEnv(TabletopEnv):
         inner = board_rect.buffer(-SPAWN_MARGIN)
         outer = board_rect.buffer(SPAWN_MARGIN)
         outline = self.shape.outline
+        variant = self.kit_variant
         for _ in range(500):
-            x, y = rng.uniform(*SPAWN_X), rng.uniform(*SPAWN_Y)
+            x, y = rng.uniform(*variant.spawn_x), rng.uniform(*variant.spawn_y)
             yaw = rng.uniform(-math.pi, math.pi)
             placed = place(outline, x, y, yaw)
             if any(placed.intersects(p) for p in pockets):
