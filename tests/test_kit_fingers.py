@@ -50,3 +50,15 @@ def test_pick_obstacles_are_the_board_edge_on_the_table_and_the_seated_shapes_on
     assert len(seated) == len(episode.obj_in_place) == len(seated_outlines(episode))
     for outline, i in zip(seated, episode.obj_in_place, strict=True):
         assert outline.centroid.distance(Point(*episode.slots[i].pos[:2])) < 0.02  # placed at its slot
+
+
+def test_another_hands_pads_lie_along_its_closing_direction_from_its_tcp():
+    pads = ((-0.026, 0.0, 0.0115), (0.0, 0.05, 0.011))  # a fixed jaw behind the TCP, a moving one ahead
+    fixed, moving = finger_footprints((0.1, 0.2), 0.0, pads=pads)
+    assert fixed.bounds == pytest.approx((0.074, 0.1885, 0.1, 0.2115))
+    assert moving.bounds == pytest.approx((0.1, 0.189, 0.15, 0.211))
+    fixed, _ = finger_footprints((0.0, 0.0), math.pi / 2, pads=pads)  # turned: the fixed jaw now behind along -y
+    assert fixed.bounds == pytest.approx((-0.0115, -0.026, 0.0115, 0.0), abs=1e-12)
+    wall = box(-0.1, -0.1, -0.04, 0.1)
+    assert fingertip_clearance((0.0, 0.0), 0.0, [wall], pads=pads) == pytest.approx(0.014)
+    assert fingertip_clearance((0.0, 0.0), math.pi, [wall], pads=pads) == pytest.approx(0.0)

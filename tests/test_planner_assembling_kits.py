@@ -117,3 +117,18 @@ def test_grasp_misses_refuses_what_it_cannot_replay(tmp_path, capsys):
     assert main(["--policy", "expert", "--report", str(report)]) == 2
     assert "LiftPegUpright-v1" in capsys.readouterr().err
     assert main(["--policy", "expert", "--seeds", "1,x"]) == 2
+
+
+def test_a_flat_jaw_meets_a_face_across_a_rectangle_and_a_corner_of_a_triangle():
+    from kitbench.planning.assembling_kits import CLOSING_SAMPLES, jaw_contacts
+
+    along = jaw_contacts(6)[0]  # the 50 x 24 mm rectangle closed along its length: a 24 mm face at either end
+    assert along.behind_at == pytest.approx(-0.025) and along.ahead_at == pytest.approx(0.025)
+    assert along.behind_face == pytest.approx(0.024, abs=5e-4) and along.ahead_face == pytest.approx(0.024, abs=5e-4)
+    diagonal = jaw_contacts(6)[CLOSING_SAMPLES // 4]  # at 45 degrees a jaw meets a corner on either side
+    assert diagonal.behind_face < 0.002 and diagonal.ahead_face < 0.002
+    # the triangle (apex up) closed along y: its base is a face behind, its apex a corner ahead
+    up = jaw_contacts(2)[CLOSING_SAMPLES // 2]
+    assert up.behind_face == pytest.approx(0.044, abs=5e-4) and up.ahead_face < 0.002
+    small = jaw_contacts(6, 0.7)[0]  # and at 0.7 scale, everything 0.7 as far
+    assert small.behind_at == pytest.approx(-0.0175) and small.behind_face == pytest.approx(0.0168, abs=5e-4)

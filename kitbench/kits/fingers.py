@@ -20,12 +20,19 @@ FINGERTIP_CENTER = 0.0476  # m from the TCP along the closing direction
 FINGER_THICKNESS = 0.016  # m, along the closing direction
 FINGER_WIDTH = 0.018  # m, across it
 CLEAR_ENOUGH = 0.012  # m between a fingertip and an obstacle beyond which more does not matter
+# Another hand's pads, each (from, to, half-width): the stretch along the closing direction from the TCP (m) that the
+# pad's lowest part covers while the hand closes, and half its width across it.
+Pad = tuple[float, float, float]
 
 
-def finger_footprints(center, angle: float, swept: bool = False) -> list[Polygon]:
+def finger_footprints(center, angle: float, swept: bool = False, pads: tuple[Pad, ...] | None = None) -> list[Polygon]:
     """Where the two open fingertips come down (table plane) for a grasp closing along `angle`; `swept`: all they
-    pass over while they close, from there in to `center` (the shape's own outline lies in between)."""
+    pass over while they close, from there in to `center` (the shape's own outline lies in between). `pads`:
+    another hand's (`center` its TCP), instead of the Panda's."""
     u = np.array([math.cos(angle), math.sin(angle)])
+    if pads is not None:
+        boxes = [box(a, -w, b, w) for a, b, w in pads]
+        return [place(p, float(center[0]), float(center[1]), angle) for p in boxes]
     outer = FINGERTIP_CENTER + FINGER_THICKNESS / 2
     inner = 0.0 if swept else FINGERTIP_CENTER - FINGER_THICKNESS / 2
     out = []
@@ -36,11 +43,13 @@ def finger_footprints(center, angle: float, swept: bool = False) -> list[Polygon
     return out
 
 
-def fingertip_clearance(center, angle: float, obstacles: list[Polygon], swept: bool = False) -> float:
+def fingertip_clearance(
+    center, angle: float, obstacles: list[Polygon], swept: bool = False, pads: tuple[Pad, ...] | None = None
+) -> float:
     """Distance (m) between the fingertips' footprints for a grasp at `center` closing along `angle` and the
     nearest obstacle; 1.0 with none."""
-    pads = finger_footprints(center, angle, swept)
-    return min((p.distance(o) for p in pads for o in obstacles), default=1.0)
+    footprints = finger_footprints(center, angle, swept, pads)
+    return min((p.distance(o) for p in footprints for o in obstacles), default=1.0)
 
 
 def seated_outlines(episode, scale: float = 1.0) -> list[Polygon]:

@@ -50,7 +50,7 @@ from kitbench.geometry import (
     wrap_angle,
 )
 from kitbench.kits import shape_geometry
-from kitbench.kits.fingers import CLEAR_ENOUGH, fingertip_clearance, pick_obstacles, seated_outlines
+from kitbench.kits.fingers import CLEAR_ENOUGH, Pad, fingertip_clearance, pick_obstacles, seated_outlines
 from kitbench.kits.shapes import grasp_width_at, place
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
 from kitbench.planning.planner import PhasePlanner
@@ -72,10 +72,20 @@ def closing_widths(shape_id: int, scale: float = 1.0) -> tuple[tuple[float, floa
 FACE_TOLERANCE = 0.0005  # m: outline within this of its extreme along the closing direction bears on a jaw
 
 
+@dataclass(frozen=True)
+class JawContact:
+    """Where a flat jaw meets a shape's outline from behind or ahead along a closing direction (shape frame):
+    how far from the centroid (m, signed along the direction) and how wide a face it meets (m, ~0 at a corner)."""
+
+    behind_at: float
+    behind_face: float
+    ahead_at: float
+    ahead_face: float
+
+
 @lru_cache(maxsize=64)
-def jaw_faces(shape_id: int, scale: float = 1.0) -> tuple[tuple[float, float], ...]:
-    """For each closing direction of `closing_widths`, (behind, ahead): how wide (m, across the direction) the
-    outline bears on a flat jaw at its extreme behind and ahead along the direction: ~0 at a corner."""
+def jaw_contacts(shape_id: int, scale: float = 1.0) -> tuple[JawContact, ...]:
+    """A `JawContact` for each closing direction of `closing_widths`."""
     outline = shape_geometry(shape_id, scale).outline
     boundary = outline.exterior
     points = np.asarray([boundary.interpolate(d).coords[0] for d in np.arange(0.0, boundary.length, 2e-4)])
@@ -83,11 +93,12 @@ def jaw_faces(shape_id: int, scale: float = 1.0) -> tuple[tuple[float, float], .
     for angle in np.arange(CLOSING_SAMPLES) * math.pi / CLOSING_SAMPLES:
         u = np.array([math.cos(angle), math.sin(angle)])
         along, across = points @ u, points @ np.array([-u[1], u[0]])
+        sides = (float(along.min()), float(along.max()))
         spans = []
-        for side in (along.min(), along.max()):
+        for side in sides:
             touching = across[np.abs(along - side) <= FACE_TOLERANCE]
             spans.append(float(touching.max() - touching.min()))
-        out.append((spans[0], spans[1]))
+        out.append(JawContact(sides[0], spans[0], sides[1], spans[1]))
     return tuple(out)
 
 
@@ -129,9 +140,16 @@ class AssemblingKitsPlannerConfig:
     # Whether the hand levels a shape it holds tilted before lowering it in: a seven-joint arm can tilt its hand any
     # way; a five-joint arm's downward hand cannot tilt across its arm's plane, and keeps its hand straight down.
     level_held: bool = True
-    # A fixed jaw (RobotSpec.fixed_jaw) grasps across faces at least this long on both sides where the shape has
-    # such a direction (m): pushed against a corner, a shape turns in the jaw.
+    # A fixed jaw (RobotSpec.fixed_jaw) prefers a face at least this wide (m): pushed against a corner, a shape turns
+    # in the jaw.
     min_jaw_face: float = 0.006
+    # The hand's pads (kits.fingers.Pad, TCP frame) where they differ from the Panda's fingertips around the centroid.
+    jaw_pads: tuple[Pad, ...] | None = None
+    # Clearance (m) from obstacles that counts as clear, before the fixed jaw's face is weighed.
+    clear_first: float = 0.004
+    # Where set (m): the shape is lowered to this far above the board's top and aligned there again before it goes
+    # in, for a hand whose lag changes as the arm folds down (the SO-101's drifted 1-2 mm over a 2 cm descent).
+    pre_insert_height: float | None = None
 
 
 # The SO-101's (kitbench/robots/so101.py), for its kit at 0.7 scale (shapes 2.1 cm tall, standing 1.4 cm proud of
@@ -139,10 +157,10 @@ class AssemblingKitsPlannerConfig:
 # carried 2 cm above the board and approached from 4 cm above the grasp, the hand stays low enough for its wrist to
 # point straight down over the whole kit (higher, the wrist flex ran into its 95-degree limit near the base). Its
 # jaw opens to 56 degrees (gripper.pos 60) and squeezes 0.05 rad past where it stopped (0.1 or more squeezes the
-# pointed shapes out of the jaw: 83% and 31% of 100 seeds against 85%), after 5 steps to close (its servo sweeps
-# ~40 degrees). Its servos run at half their no-load speed and lag their targets by 1-3 mm under load, which the
-# align and insert moves aim out (`aim_by_command`); the wrist's turn is predicted from the arm's swing to within
-# ~0.15 rad, hence the wider margin from its limits (measured: docs/robots.md).
+# pointed shapes out of the jaw), after 5 steps to close (its servo sweeps ~40 degrees). Its servos run at half their
+# no-load speed and lag their targets by 1-3 mm under load, which the align and insert moves aim out; the wrist's
+# turn is predicted from the arm's swing to within ~0.15 rad, hence the wider margin from its limits (docs/robots.md
+# has what each setting bought).
 SO101_CONFIG = AssemblingKitsPlannerConfig(
     grasp_height=0.03,
     approach_height=0.04,
@@ -156,6 +174,10 @@ SO101_CONFIG = AssemblingKitsPlannerConfig(
     joint7_margin=0.25,
     aim_by_command=True,
     level_held=False,
+    pre_insert_height=0.002,
+    # the fixed jaw's lowest part, 2.6 cm behind its face and 2.3 cm wide, reaches 7 mm above the shape's bottom (below
+    # the board's top beside a shape on the table); the moving jaw's comes down within 5 cm ahead of it as it closes
+    jaw_pads=((-0.026, 0.0, 0.0115), (0.0, 0.05, 0.011)),
 )
 ROBOT_CONFIGS = {"so101": SO101_CONFIG}
 
@@ -324,38 +346,63 @@ class AssemblingKitsPlanner(PhasePlanner):
         goal_xy = self.env.goal_pos[:2]
         best = None
         widths = closing_widths(shape.shape_id, shape.scale)
-        faces = jaw_faces(shape.shape_id, shape.scale)
-        for (angle, opening), (behind, ahead) in zip(widths, faces, strict=True):
+        contacts = jaw_contacts(shape.shape_id, shape.scale)
+        for (angle, opening), contact in zip(widths, contacts, strict=True):
             if opening > self.cfg.max_opening:
                 continue
             closing = obj_yaw + angle
-            pick_clear = min(fingertip_clearance(obj[:2, 3], closing, around, swept=True), self.cfg.clear_enough)
             base = wrap_angle(closing + math.pi / 2 - hand_yaw)  # hand yaw whose fingers close along `closing`
             for rotation in rotations:
-                goal_clear = min(fingertip_clearance(goal_xy, closing + rotation, seated), self.cfg.clear_enough)
-                clear = round(min(pick_clear, goal_clear), 3)
                 for m in (-2, -1, 0, 1, 2):
                     turn = base + m * math.pi
                     q7 = self._joint7_after(start, turn, obj[:2, 3])
                     at_goal = q7 + self.wrist_sign * (rotation - self._pan_turn(obj[:2, 3], goal_xy))
                     if not (self._q7_ok(q7) and self._q7_ok(at_goal)):
                         continue
-                    face = self._fixed_face(start, turn, closing, behind, ahead)
-                    key = (face, clear, -(abs(turn) + abs(rotation)) - 5.0 * opening)
+                    # which way the hand's y (towards the moving jaw) points along `closing`: a fixed jaw's side
+                    jaw_y = (rot_z(turn) @ start.tcp[:3, :3])[:2, 1]
+                    ahead = float(jaw_y @ [math.cos(closing), math.sin(closing)]) < 0
+                    clear = self._clearance(obj[:2, 3], goal_xy, closing, rotation, contact, ahead, around, seated)
+                    face = 0.0
+                    if self.fixed_jaw:
+                        face = round(
+                            min(contact.ahead_face if ahead else contact.behind_face, self.cfg.min_jaw_face), 3
+                        )
+                    key = (min(clear, self.cfg.clear_first), face, clear, -(abs(turn) + abs(rotation)) - 5.0 * opening)
                     if best is None or key > best[0]:
                         best = (key, turn, rotation)
         if best is None:  # no direction fits the opening or joint 7: fall back on the narrowest, shortest way
             return wrap_angle(obj_yaw + shape.grasp_angle + math.pi / 2 - hand_yaw), delta
         return best[1], best[2]
 
-    def _fixed_face(self, start: Step, turn: float, closing: float, behind: float, ahead: float) -> float:
-        """How much of a face (m, up to `min_jaw_face`) the fixed jaw meets after turning the hand by `turn` to close
-        along `closing` (its face lies behind the TCP's y, where `_jaw_offset` puts it); 0 for two fingers."""
-        if not self.fixed_jaw:
-            return 0.0
-        jaw_y = (rot_z(turn) @ start.tcp[:3, :3])[:2, 1]
-        face = behind if float(jaw_y @ [math.cos(closing), math.sin(closing)]) > 0 else ahead
-        return round(min(face, self.cfg.min_jaw_face), 3)
+    def _clearance(
+        self,
+        obj_xy: np.ndarray,
+        goal_xy: np.ndarray,
+        closing: float,
+        rotation: float,
+        contact: JawContact,
+        ahead: bool,
+        around: list,
+        seated: list,
+    ) -> float:
+        """How clear of obstacles (m, up to `clear_enough`) the hand comes down and closes at the grasp and comes down
+        beside the slot: the Panda's fingertips around the centroid, or the hand's own `jaw_pads` from its TCP (a
+        fixed jaw's on the outline, behind the shape along its y, or ahead when `ahead`)."""
+        pads = self.cfg.jaw_pads
+        if pads is None:
+            pick = fingertip_clearance(obj_xy, closing, around, swept=True)
+            goal = fingertip_clearance(goal_xy, closing + rotation, seated)
+        else:
+            y = closing + (math.pi if ahead else 0.0)  # the hand's y, along which its pads lie
+            # the TCP from the centroid along y (<= 0): a fixed jaw's face where it meets the outline
+            offset = (-contact.ahead_at if ahead else contact.behind_at) if self.fixed_jaw else 0.0
+            pick_tcp = np.asarray(obj_xy) + offset * np.array([math.cos(y), math.sin(y)])
+            pick = fingertip_clearance(pick_tcp, y, around, pads=pads)
+            y_goal = y + rotation
+            goal_tcp = np.asarray(goal_xy) + offset * np.array([math.cos(y_goal), math.sin(y_goal)])
+            goal = fingertip_clearance(goal_tcp, y_goal, seated, pads=pads)
+        return round(min(pick, goal, self.cfg.clear_enough), 3)
 
     def _plan_approach(self, start: Step | None = None) -> list[Step]:
         self.grasp_attempts += 1
@@ -466,6 +513,13 @@ class AssemblingKitsPlanner(PhasePlanner):
             rotation = min(signed_yaw_options(delta, self.env.shape.symmetry), key=abs)
             target = self._aimed(start, self._goal_tcp(obj, tcp, rotation, obj[2, 3]), tcp)
             steps = self._move(start, target, rotation, self.grip, "align")
+            return steps + hold(steps[-1], self.cfg.settle_steps)
+        low = self.cfg.pre_insert_height
+        board_top = self.env.episodes.board.top
+        if low is not None and obj[2, 3] > board_top + low + 0.002:  # not yet down there: lower, then align again
+            self.align_corrections = 0
+            target = self._aimed(start, self._goal_tcp(obj, tcp, 0.0, board_top + low), tcp)
+            steps = self._move(start, target, 0.0, self.grip, "align", speed=self.cfg.insert_speed)
             return steps + hold(steps[-1], self.cfg.settle_steps)
         floor = self.env.floor
         target = self._aimed(start, self._goal_tcp(obj, tcp, 0.0, floor + self.cfg.release_height), tcp)
