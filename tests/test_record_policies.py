@@ -48,6 +48,7 @@ def test_the_card_describes_the_dataset_and_its_command_makes_it_again(tmp_path)
     assert "task_categories" in header and header["configs"][0]["data_files"] == "data/*/*.parquet"
     assert "**`pd_joint_pos`**" in text and "with observations **`state`**" in text
     assert "- Episodes: 2 (" in text and "seeds 4–5" in text and "action noise 0.05" in text
+    assert "as built for" not in text  # the Panda's is the reference build
     assert "| `observation.state` | float32 | (8,) |" in text and '"total_episodes": 2' in text
     command = text.split("- Made again by: `")[1].split("`")[0]
     assert command.startswith("kitbench record --task LiftPegUpright-v1 --episodes 2 --seed 4 ")

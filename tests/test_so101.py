@@ -204,6 +204,7 @@ def test_a_recording_has_the_so_followers_features(tmp_path, obs_mode, request):
     assert np.abs(state[:, :5]).max() > 10  # degrees, not radians
     card = (out / "README.md").read_text()
     assert "joints in degrees, `gripper.pos` 0 (closed) to 100 (open)" in card and "gripper opening (m)" not in card
+    assert "- The task as built for the so101: the peg at 0.5 of the reference size (12 x 2.5 x 2.5 cm)" in card
 
 
 def test_a_robot_a_task_does_not_support_names_its_robots(tmp_path):

@@ -271,6 +271,12 @@ class TabletopEnv(gym.Env, abc.ABC):
         return cls.robot_max_episode_steps.get(robot, cls.max_episode_steps)
 
     @classmethod
+    def variant_description(cls, robot_uid: str) -> str | None:
+        """How the task is built for `robot_uid` where that differs from its reference build (a dataset's card says
+        it), in a phrase; None where it does not."""
+        return None
+
+    @classmethod
     def has_expert(cls) -> bool:
         return cls.expert is not None
 

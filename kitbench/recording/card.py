@@ -153,6 +153,16 @@ def record_command(recording: RecordingInfo, episodes: int) -> str:
     return shlex.join([*flags, "--out", "<folder>"])
 
 
+def _variant_note(task: str, robot: str) -> list[str]:
+    """The card's line on the task's build for this robot where it is not the reference build (TabletopEnv.
+    variant_description)."""
+    from kitbench.registration import TASKS
+
+    entry = TASKS.get(task)
+    variant = None if entry is None else entry.env_class.variant_description(robot)
+    return [] if variant is None else [f"- The task as built for the {robot}: {variant}."]
+
+
 def card_text(root: Path) -> str:
     """The card of the dataset at `root` (its meta/info.json, kitbench's recording settings and episodes)."""
     from lerobot.datasets.utils import create_lerobot_dataset_card
@@ -209,6 +219,7 @@ def card_text(root: Path) -> str:
             f"- Episodes: {len(episodes)} ({info['total_frames']} frames), {successes} successful; seeds {seed_range}",
             f"- Made by: {how}",
             f"- Made again by: `{record_command(recording, len(episodes))}`",
+            *_variant_note(recording.task, robot),
             *held,
             *camera_notes(features),
             f"- {files}",

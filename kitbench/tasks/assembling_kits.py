@@ -29,7 +29,7 @@ from kitbench.envs.observations import pose7
 from kitbench.envs.tabletop import TabletopEnv
 from kitbench.errors import KitbenchError
 from kitbench.geometry import planar_yaw, quat_to_matrix, yaw_quat
-from kitbench.kits import NUM_SHAPES, Episode, EpisodeSet, load_episodes, place, shape_geometry
+from kitbench.kits import BOARD_SIZE, NUM_SHAPES, Episode, EpisodeSet, load_episodes, place, shape_geometry
 from kitbench.registration import register_env
 from kitbench.sim.actors import build_convex_actor, build_static_mesh_actor
 from kitbench.sim.cameras import CameraSpec
@@ -142,6 +142,19 @@ class AssemblingKitsEnv(TabletopEnv):
         self.episode_index = -1
         self._boards: OrderedDict = OrderedDict()  # episode index -> BoardGeometry, least recently used last
         super().__init__(*args, **kwargs)
+
+    @classmethod
+    def variant_description(cls, robot_uid: str) -> str | None:
+        variant = ROBOT_VARIANTS.get(robot_uid)
+        if variant is None:
+            return None
+        size = " x ".join(f"{variant.scale * s * 100:g}" for s in BOARD_SIZE)
+        x, y = variant.spawn_x, variant.spawn_y
+        return (
+            f"every kit at {variant.scale:g} scale (the shapes, their pockets and clearances, the slots' positions and "
+            f"the board, {size} cm); the loose shape within x {x[0]:g}..{x[1]:g} m and y {y[0]:g}..{y[1]:g} m; the "
+            "same success test"
+        )
 
     @property
     def kit_variant(self) -> KitVariant:

@@ -89,6 +89,17 @@ class LiftPegUprightEnv(TabletopEnv):
         "so101": "kitbench.planning.lift_peg_upright_so101:SO101LiftPegUprightPlanner",
     }
 
+    @classmethod
+    def variant_description(cls, robot_uid: str) -> str | None:
+        scale = ROBOT_SCALE.get(robot_uid)
+        if scale is None:
+            return None
+        length, width = 2 * PEG_HALF_LENGTH * scale * 100, 2 * PEG_HALF_WIDTH * scale * 100
+        return (
+            f"the peg at {scale:g} of the reference size ({length:g} x {width:g} x {width:g} cm), lying within "
+            f"{SPAWN_HALF_WIDTH * scale * 100:g} cm of the origin; the same success test"
+        )
+
     @property
     def task_scale(self) -> float:
         """The size of this robot's variant of the task (`ROBOT_SCALE`), before any `object_scale` perturbation."""
