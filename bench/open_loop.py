@@ -1,7 +1,7 @@
 """Open-loop precision of a trained policy: on the states the expert visits, where does the policy's next action
 lead, against the expert's own, phase by phase?
 
-    python bench/open_loop.py CHECKPOINT --task AssemblingKits-v1 [--seeds 0:20] [--out report.json]
+    python bench/open_loop.py CHECKPOINT --task AssemblingKits-v1 [--seeds 0:20 | N | S1,S2,...] [--out report.json]
 
 For each seed the task's expert runs the episode (in the control mode the checkpoint was trained in, with the
 robot it was trained on). At every step the checkpoint predicts its action chunk from the same observation, and
@@ -25,6 +25,7 @@ import json
 import math
 import sys
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,16 +33,33 @@ import numpy as np
 from kitbench.errors import KitbenchError
 
 
-def parse_seeds(text: str) -> range:
-    """`A:B` (A included, B not) or a count `N` (0..N-1)."""
+def parse_seeds(text: str) -> Sequence[int]:
+    """`A:B` (A included, B not), a count `N` (0..N-1) or a list `S1,S2,...` (the seeds of one group of episodes, e.g.
+    those a policy failed in the same way)."""
     start, sep, stop = text.partition(":")
+    seeds: Sequence[int]
     try:
-        seeds = range(int(start), int(stop)) if sep else range(int(text))
+        if "," in text:
+            seeds = [int(s) for s in text.split(",")]
+        else:
+            seeds = range(int(start), int(stop)) if sep else range(int(text))
     except ValueError:
         seeds = range(0)
-    if not seeds or seeds.start < 0:
-        raise KitbenchError(f"--seeds {text!r} must be a count N or a range A:B of seeds >= 0 with A < B")
+    if not seeds or min(seeds) < 0:
+        raise KitbenchError(
+            f"--seeds {text!r} must be a count N, a range A:B of seeds >= 0 with A < B, or a list S1,S2,... of "
+            "seeds >= 0"
+        )
     return seeds
+
+
+def describe_seeds(seeds: Sequence[int]) -> str:
+    return f"{seeds.start}..{seeds.stop - 1}" if isinstance(seeds, range) else ",".join(map(str, seeds))
+
+
+def seeds_json(seeds: Sequence[int]) -> list[int]:
+    """A range as [start, stop], a list as itself."""
+    return [seeds.start, seeds.stop] if isinstance(seeds, range) else list(seeds)
 
 
 def _rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -50,7 +68,7 @@ def _rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
 
 
-def measure(checkpoint: str, task: str, seeds: range) -> dict:
+def measure(checkpoint: str, task: str, seeds: Sequence[int]) -> dict:
     """Per phase (in the order the expert's `phases` declares them): lists of the horizontal, vertical (m) and
     angular (deg) distances between where the policy's action and the expert's lead, the differences of their
     gripper commands and the expert's step lengths (m)."""
@@ -106,7 +124,7 @@ def measure(checkpoint: str, task: str, seeds: range) -> dict:
     finally:
         env.close()
     ordered = {p: phases[p] for p in sorted(phases, key=lambda p: order.index(p) if p in order else len(order))}
-    return {"checkpoint": checkpoint, "task": task, "seeds": [seeds.start, seeds.stop], "phases": ordered}
+    return {"checkpoint": checkpoint, "task": task, "seeds": seeds_json(seeds), "phases": ordered}
 
 
 def summarize(measured: dict) -> list[dict]:
@@ -145,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="a lerobot-train output folder or its pretrained_model")
     parser.add_argument("--task", required=True, help="the task the checkpoint was trained on")
-    parser.add_argument("--seeds", default="20", help="N (seeds 0..N-1) or A:B (default 20)")
+    parser.add_argument("--seeds", default="20", help="N (seeds 0..N-1), A:B or S1,S2,... (default 20)")
     parser.add_argument("--out", help="also write the rows, and the settings, to this JSON file")
     args = parser.parse_args(argv)
     try:
@@ -158,10 +176,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"open_loop: error: {exc}", file=sys.stderr)
         return 2
     rows = summarize(measured)
-    print(f"{args.checkpoint} on {args.task}, seeds {seeds.start}..{seeds.stop - 1}, expert's states:")
+    print(f"{args.checkpoint} on {args.task}, seeds {describe_seeds(seeds)}, expert's states:")
     print_table(rows)
     if args.out:
-        report = {"checkpoint": args.checkpoint, "task": args.task, "seeds": [seeds.start, seeds.stop], "rows": rows}
+        report = {"checkpoint": args.checkpoint, "task": args.task, "seeds": seeds_json(seeds), "rows": rows}
         Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     return 0
 
