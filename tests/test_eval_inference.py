@@ -243,3 +243,24 @@ def test_open_loop_bench_probes_a_diffusion_checkpoint_on_every_expert_state(che
     assert {"approach", "grasp", "swing"} <= {r["phase"] for r in rows}
     for r in rows:
         assert all(math.isfinite(x) and x >= 0 for x in (*r["horizontal_mm"], *r["vertical_mm"], r["rotation_deg"]))
+
+
+@pytest.mark.parametrize(
+    "text,seeds",
+    [("3", range(3)), ("5:8", range(5, 8)), ("1000004,1000013,7", [1000004, 1000013, 7])],
+)
+def test_open_loop_seeds_are_a_count_a_range_or_a_list(text, seeds):
+    from bench.open_loop import describe_seeds, parse_seeds, seeds_json
+
+    parsed = parse_seeds(text)
+    assert list(parsed) == list(seeds)
+    assert seeds_json(parsed) == ([seeds.start, seeds.stop] if isinstance(seeds, range) else seeds)
+    assert describe_seeds(parsed) == (f"{seeds.start}..{seeds.stop - 1}" if isinstance(seeds, range) else text)
+
+
+@pytest.mark.parametrize("text", ["0", "5:5", "-1:3", "3,-2", "a,b", "x"])
+def test_open_loop_bad_seeds_name_the_forms(text):
+    from bench.open_loop import parse_seeds
+
+    with pytest.raises(KitbenchError, match=r"must be a count N, a range A:B .* or a list S1,S2"):
+        parse_seeds(text)
