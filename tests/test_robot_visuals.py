@@ -31,3 +31,27 @@ def test_lightweight_meshes_keep_shape_and_colours(needs_vulkan, tmp_path, monke
         assert sorted(np.round(c1, 3).tolist()) == sorted(np.round(c0, 3).tolist())  # one material per part kept
     assert total_after < total_before / 5
     lightweight_mesh.cache_clear()
+
+
+def test_the_so101s_meshes_welded_coarser_decimate_far_and_keep_their_extent(needs_vulkan, tmp_path, monkeypatch):
+    import re
+    from pathlib import Path
+
+    from kitbench.robots import ROBOTS
+
+    spec = ROBOTS["so101"]
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    lightweight_mesh.cache_clear()
+    urdf = Path(spec.urdf())
+    names = ("wrist_roll_follower_so101_v1.stl", "moving_jaw_so101_v1.stl")  # each stalled at 50% and 37% before
+    meshes = [m for m in re.findall(r'filename="([^"]+\.stl)"', urdf.read_text()) if Path(m).name in names]
+    assert len(set(meshes)) == 2
+    for mesh in sorted(set(meshes)):
+        source = str(urdf.parent.parent / mesh.split("so_arm_description/")[1])
+        fine, coarse = lightweight_mesh(source), lightweight_mesh(source, spec.decimate_visuals)
+        assert fine != coarse  # each its own cached copy
+        n0, b0, _ = _triangles_and_bounds(source)
+        n1, b1, _ = _triangles_and_bounds(coarse)
+        np.testing.assert_allclose(b1, b0, atol=0.001)  # same extent to 1 mm
+        assert n1 < 0.2 * n0 and n1 < 0.6 * _triangles_and_bounds(fine)[0]
+    lightweight_mesh.cache_clear()

@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 
 from kitbench.robots.registry import register_robot
-from kitbench.robots.spec import RobotSpec
+from kitbench.robots.spec import Decimation, RobotSpec
 from kitbench.sim.cameras import CameraSpec
 
 ARM_JOINTS = (
@@ -116,7 +116,7 @@ FETCH = RobotSpec(
     ground_free_links=GROUND_FREE_LINKS,
     # the reference's visual meshes (DAE, 9 MB) cost rgb observations 4x: 8 steps/s with them, 28-33 decimated
     # (bench/run.py, 3 cameras at 128x128); the decimated copies keep each part's colour but not its texture
-    decimate_visuals=True,
+    decimate_visuals=Decimation(),
     table_clearance=0.35,  # the base's radius is 0.28 m; its bumper stays 7 cm from the table
 )
 register_robot(FETCH)

@@ -9,7 +9,7 @@ import numpy as np
 
 from kitbench.robots.assets import panda_mujoco_urdf, panda_urdf_path
 from kitbench.robots.registry import register_robot
-from kitbench.robots.spec import RobotSpec
+from kitbench.robots.spec import Decimation, RobotSpec
 from kitbench.sim.cameras import CameraSpec
 
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
@@ -73,7 +73,7 @@ PANDA = RobotSpec(
     arm_velocity_limits=ARM_VELOCITY_LIMITS,
     arm_acceleration_limits=ARM_ACCELERATION_LIMITS,
     self_collision_ignored=SELF_COLLISION_IGNORED,
-    decimate_visuals=True,
+    decimate_visuals=Decimation(),
 )
 PANDA_WRISTCAM = replace(PANDA, uid="panda_wristcam", cameras=(HAND_CAMERA,))
 register_robot(PANDA, PANDA_WRISTCAM)

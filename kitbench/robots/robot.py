@@ -49,10 +49,10 @@ def _parsed(scene: sapien.Scene, spec: RobotSpec, render: bool):
         for link_builder in builder.link_builders:
             if not render:
                 link_builder.visual_records = []
-            if spec.decimate_visuals:
+            if spec.decimate_visuals is not None:
                 for record in link_builder.visual_records:
                     if record.type == "file":
-                        record.filename = lightweight_mesh(record.filename)
+                        record.filename = lightweight_mesh(record.filename, spec.decimate_visuals)
             if link_builder.name in spec.finger_links:
                 for record in link_builder.collision_records:
                     record.material = finger_material

@@ -41,6 +41,15 @@ class CollisionBox:
 
 
 @dataclass(frozen=True)
+class Decimation:
+    """How a robot's visual meshes are lightened for CPU rendering: vertices welded on a `weld` grid (m; the default
+    merges coincident ones only), then quadric simplification to `keep` of each part's triangles."""
+
+    weld: float = 1e-6
+    keep: float = 0.12
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """A robot variant: its model, the joints and links kitbench drives and reads, and its drive settings."""
 
@@ -106,8 +115,8 @@ class RobotSpec:
     # Collision boxes replacing some of a link's collision meshes (`CollisionBox`): SAPIEN wraps each mesh in one
     # convex hull, which for a jaw moulded in one piece with its mount fills the gap an object is held in.
     collision_boxes: tuple[CollisionBox, ...] = ()
-    # Links whose visual meshes are decimated for CPU rendering (kitbench.robots.visuals); none: kept as is.
-    decimate_visuals: bool = False
+    # How its visual meshes are lightened for CPU rendering (kitbench.robots.visuals); None: kept as they are.
+    decimate_visuals: Decimation | None = None
     # The room the robot needs in front of its base (m): the table's near edge stays at least this far from
     # the base's origin along +x. None: the standard table (its near edge under the Panda's base).
     table_clearance: float | None = None
