@@ -64,7 +64,7 @@ def pocket_clearances(clearance: Clearance = None, scale: float = 1.0) -> tuple[
     """The clearance of each shape id's pocket (m), from any form of `Clearance` (None: each shape's own, times the
     kit's `scale`)."""
     if clearance is None:
-        return SLOT_CLEARANCE if scale == 1.0 else tuple(round(c * scale, 5) for c in SLOT_CLEARANCE)
+        return SLOT_CLEARANCE if scale == 1.0 else tuple(c * scale for c in SLOT_CLEARANCE)
     if isinstance(clearance, (int, float, np.floating, np.integer)):
         values = (float(clearance),) * NUM_SHAPES
     else:

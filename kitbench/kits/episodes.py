@@ -432,7 +432,7 @@ def _check_board(c: _Checker, data: dict[str, Any], version: int) -> BoardSpec:
             clearance = c.vec(value, "board.clearance", NUM_SHAPES, lo=0.0)
         else:
             clearance = (c.num(value, "board.clearance", lo=0.0),) * NUM_SHAPES
-    # optional: the shapes' footprint scale (a kit built smaller for a smaller hand)
+    # optional: the shapes' size against the standard ones (a kit built smaller for a smaller hand)
     scale = c.num(board["scale"], "board.scale", hi=2.0, positive=True) if "scale" in board else 1.0
     return BoardSpec(size=(size[0], size[1]), top=top, pocket_depth=depth, clearance=clearance, scale=scale)
 

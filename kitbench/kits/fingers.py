@@ -53,8 +53,8 @@ def fingertip_clearance(
 
 
 def seated_outlines(episode, scale: float = 1.0) -> list[Polygon]:
-    """Outlines of the shapes seated in the kit (their footprint `scale` times the standard): 2 cm proud of the
-    board, fingertips must not come down on them."""
+    """Outlines of the shapes seated in the kit (`scale` times the standard shapes): standing proud of the board,
+    fingertips must not come down on them."""
     slots = [episode.slots[i] for i in episode.obj_in_place]
     return [place(shape_geometry(s.shape_id, scale).outline, s.pos[0], s.pos[1], s.yaw) for s in slots]
 

@@ -264,7 +264,7 @@ def shape_outline(shape_id: int) -> Polygon:
 
 
 def check_scale(scale: object) -> float:
-    """Validate a footprint scale (a kit built smaller for a smaller hand), naming the bad value."""
+    """Validate a kit's scale (a kit built smaller for a smaller hand), naming the bad value."""
     if isinstance(scale, (bool, np.bool_)) or not isinstance(scale, (int, float, np.floating, np.integer)):
         raise KitbenchError(f"kit scale must be a number in (0, 2], got {scale!r}")
     if not 0.0 < float(scale) <= 2.0:
@@ -340,7 +340,7 @@ def _cached_slot(shape_id: int, clearance: float, scale: float) -> Polygon:
 
 
 def slot_outline(shape_id: int, clearance: float | None = None, scale: float = 1.0) -> Polygon:
-    """The pocket outline for a shape (footprint `scale` times the standard) in the shape frame: its exterior grown
+    """The pocket outline for a shape (`scale` times the standard) in the shape frame: its exterior grown
     by `clearance` per side (default: the shape's own, `clearance.SLOT_CLEARANCE`, times `scale`: the same largest
     seated yaw)."""
     shape_id = check_shape_id(shape_id)

@@ -43,20 +43,21 @@ SPAWN_Y = (-0.182, 0.182)
 
 @dataclass(frozen=True)
 class KitVariant:
-    """One robot's build of the task: its kits' footprint (`EpisodeSet.scaled`: shapes, pockets, slot positions and
-    board; heights, yaws and the success criteria unchanged) and where its loose shape spawns."""
+    """One robot's build of the task: its kits' size (`EpisodeSet.scaled`: every dimension of the shapes, pockets
+    and board, and the slots' positions; yaws and the success criteria unchanged) and where its loose shape spawns."""
 
     scale: float = 1.0
     spawn_x: tuple[float, float] = SPAWN_X
     spawn_y: tuple[float, float] = SPAWN_Y
 
 
-# The SO-101's kit is 0.7 of the standard one (board 14 x 19.6 cm): its jaw spans at most ~5 cm and holds a shape
-# it closes on across 3.2 cm or less (the LiftPegUpright peg's 2.5 cm), while the standard shapes' narrowest
-# closing spans run to 4.3 cm (the five-pointed star) and 9 of the 20 need more than 3.5 cm every way; at 0.7 the
-# widest is 3.0 cm. Pockets keep each shape's largest seated yaw (clearances 0.48-1.4 mm). Its loose shape lies
-# within 3 cm past the board's middle and 15 cm to either side, 12-26 cm in front of the base and to the side of
-# it, where a downward jaw reaches the table (kitbench/robots/so101.py).
+# The SO-101's kit is 0.7 of the standard one (board 14 x 19.6 cm): its jaw spans at most ~5 cm, and on the full-size
+# kit its expert managed 4 of 20 seeds, shapes closed on across more than 3.5 cm sliding out of the jaw; 9 of the 20
+# standard shapes need more than that every way (the five-pointed star's narrowest is 4.3 cm), at 0.7 none needs more
+# than 3.0 cm. Heights scale too (shapes 2.1 cm tall, the board 1.4 cm thick): carried over a full-height kit the hand
+# was too high for the wrist to point straight down near the base. Pockets keep each shape's largest seated yaw
+# (clearances 0.48-1.4 mm). Its loose shape lies within 3 cm past the board's middle and 15 cm to either side, 12-26
+# cm in front of the base and to the side of it, where a downward jaw reaches the table (kitbench/robots/so101.py).
 ROBOT_VARIANTS = {"so101": KitVariant(scale=0.7, spawn_x=(-0.07, 0.03), spawn_y=(-0.15, 0.15))}
 SPAWN_MARGIN = 0.004  # m kept between a spawned shape and any pocket or the board edge
 SHAPE_DENSITY = 600.0  # kg/m^3, a plastic-like block of 12-27 g
