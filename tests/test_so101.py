@@ -138,19 +138,25 @@ def test_the_task_variant_is_half_size():
     env.close()
 
 
+def _expert_episode(env, seed: int):
+    """One episode of the task's SO-101 expert from `seed`, its targets sent in the env's mode: (last info, planner)."""
+    u = env.unwrapped
+    obs, info = env.reset(seed=seed)
+    planner = u.make_expert()
+    planner.reset(obs, info)
+    for _ in range(u.episode_steps("so101")):
+        target = planner.act(obs)
+        obs, _, terminated, _, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
+        if terminated:
+            break
+    return info, planner
+
+
 @pytest.mark.parametrize("mode", ["pd_joint_pos", "pd_joint_delta_pos"])
 def test_the_expert_stands_the_peg_up(mode):
     env = _env(mode)
-    u = env.unwrapped
     for seed in range(3):
-        obs, info = env.reset(seed=seed)
-        planner = u.make_expert()
-        planner.reset(obs, info)
-        for _ in range(u.episode_steps("so101")):
-            target = planner.act(obs)
-            obs, _, terminated, _, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
-            if terminated:
-                break
+        info, planner = _expert_episode(env, seed)
         assert info["success"], (seed, planner.failure)
     env.close()
 
@@ -254,14 +260,7 @@ def test_the_expert_inserts_the_smaller_shapes():
     env = _kit_env()
     u = env.unwrapped
     for seed in (1, 6, 8):  # a T block, a trapezoid, a kite
-        obs, info = env.reset(seed=seed)
-        planner = u.make_expert()
-        planner.reset(obs, info)
-        for _ in range(u.episode_steps("so101")):
-            target = planner.act(obs)
-            obs, _, terminated, _, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
-            if terminated:
-                break
+        info, planner = _expert_episode(env, seed)
         assert info["success"], (seed, u.shape.name, planner.failure)
     env.close()
 

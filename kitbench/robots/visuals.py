@@ -17,13 +17,13 @@ import numpy as np
 
 from kitbench.robots.spec import Decimation
 
-KEEP_FRACTION = 0.12  # of each part's triangles, by default (RobotSpec.decimate_visuals)
+DEFAULT = Decimation()  # coincident vertices welded, 12% of each part's triangles kept
 _FORMAT_VERSION = 2
 
 
 def cache_dir() -> Path:
     """The user's cache folder, or the temp folder where the home directory is not writable."""
-    name = f"panda-visuals-v{_FORMAT_VERSION}-{int(KEEP_FRACTION * 100)}"
+    name = f"panda-visuals-v{_FORMAT_VERSION}-{int(DEFAULT.keep * 100)}"
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "kitbench"
     try:
         base.mkdir(parents=True, exist_ok=True)
@@ -54,44 +54,39 @@ def _write_obj(path: Path, parts: list[tuple[np.ndarray, np.ndarray, tuple[float
     os.replace(tmp, path)  # the OBJ appears last: its presence means the pair is complete
 
 
-WELD = 1e-6  # m: vertices this close are one vertex, by default
-
-
-def _weld(vertices: np.ndarray, faces: np.ndarray, weld: float = WELD) -> tuple[np.ndarray, np.ndarray]:
+def _weld(vertices: np.ndarray, faces: np.ndarray, weld: float = DEFAULT.weld) -> tuple[np.ndarray, np.ndarray]:
     """Merge vertices within `weld` of each other (on a grid that fine): the meshes split vertices per face, which
     decimation cannot collapse; a coarser grid also merges a CAD export's sliver triangles, dropping those it
     collapses to a line or a point."""
     keys = np.round(vertices / weld).astype(np.int64)
     _, index, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     faces = inverse.reshape(-1)[faces]
-    if weld != WELD:
+    if weld != DEFAULT.weld:
         faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     return vertices[index], faces
 
 
 def _decimate(
-    vertices: np.ndarray, faces: np.ndarray, weld: float = WELD, keep: float = KEEP_FRACTION
+    vertices: np.ndarray, faces: np.ndarray, decimation: Decimation = DEFAULT
 ) -> tuple[np.ndarray, np.ndarray]:
     import fast_simplification
 
-    vertices, faces = _weld(vertices, faces, weld)
+    vertices, faces = _weld(vertices, faces, decimation.weld)
     if len(faces) < 200:
         return vertices, faces
     v, f = fast_simplification.simplify(
-        vertices.astype(np.float32), faces.astype(np.int64), target_reduction=1.0 - keep
+        vertices.astype(np.float32), faces.astype(np.int64), target_reduction=1.0 - decimation.keep
     )
     return v, f
 
 
 @functools.cache
-def lightweight_mesh(source: str, decimation: Decimation | None = None) -> str:
-    """Path of the decimated copy of a visual mesh file (`Decimation`; default: coincident vertices welded, 12% of
-    the triangles kept), made on first use."""
+def lightweight_mesh(source: str, decimation: Decimation = DEFAULT) -> str:
+    """Path of the decimated copy of a visual mesh file (`Decimation`), made on first use."""
     import sapien
 
-    weld, keep = (WELD, KEEP_FRACTION) if decimation is None else (decimation.weld, decimation.keep)
     digest = hashlib.sha1(Path(source).read_bytes()).hexdigest()[:12]
-    how = "" if (weld, keep) == (WELD, KEEP_FRACTION) else f"-weld{weld * 1e6:g}um-keep{keep * 100:g}"
+    how = "" if decimation == DEFAULT else f"-weld{decimation.weld * 1e6:g}um-keep{decimation.keep * 100:g}"
     target = cache_dir() / f"{Path(source).stem}-{digest}{how}.obj"
     if target.is_file():
         return str(target)
@@ -99,7 +94,7 @@ def lightweight_mesh(source: str, decimation: Decimation | None = None) -> str:
     shape = sapien.render.RenderShapeTriangleMesh(source)
     parts = []
     for part in shape.parts:
-        v, f = _decimate(np.asarray(part.get_vertices()), np.asarray(part.get_triangles()), weld, keep)
+        v, f = _decimate(np.asarray(part.get_vertices()), np.asarray(part.get_triangles()), decimation)
         r, g, b = (float(c) for c in part.material.base_color[:3])
         parts.append((v, f, (r, g, b)))
     _write_obj(target, parts)
