@@ -359,6 +359,9 @@ class AssemblingKitsPlanner(PhasePlanner):
                 continue
             closing = obj_yaw + angle
             base = wrap_angle(closing + math.pi / 2 - hand_yaw)  # hand yaw whose fingers close along `closing`
+            # clearances by the fixed jaw's side (None for hands whose pads do not depend on it), then rotation
+            pick_clear: dict[bool | None, float] = {}
+            goal_clear: dict[tuple[float, bool | None], float] = {}
             for rotation in rotations:
                 for m in (-2, -1, 0, 1, 2):
                     turn = base + m * math.pi
@@ -369,7 +372,14 @@ class AssemblingKitsPlanner(PhasePlanner):
                     # which way the hand's y (towards the moving jaw) points along `closing`: a fixed jaw's side
                     jaw_y = (rot_z(turn) @ start.tcp[:3, :3])[:2, 1]
                     ahead = float(jaw_y @ [math.cos(closing), math.sin(closing)]) < 0
-                    clear = self._clearance(obj[:2, 3], goal_xy, closing, rotation, contact, ahead, around, seated)
+                    side = ahead if self.cfg.jaw_pads is not None else None
+                    if side not in pick_clear:
+                        pick_clear[side] = self._clearance(obj[:2, 3], closing, 0.0, contact, ahead, around, True)
+                    if (rotation, side) not in goal_clear:
+                        goal_clear[rotation, side] = self._clearance(
+                            goal_xy, closing, rotation, contact, ahead, seated, False
+                        )
+                    clear = round(min(pick_clear[side], goal_clear[rotation, side], self.cfg.clear_enough), 3)
                     face = 0.0
                     if self.fixed_jaw:
                         face = round(
@@ -384,32 +394,26 @@ class AssemblingKitsPlanner(PhasePlanner):
 
     def _clearance(
         self,
-        obj_xy: np.ndarray,
-        goal_xy: np.ndarray,
+        xy: np.ndarray,
         closing: float,
         rotation: float,
         contact: JawContact,
         ahead: bool,
-        around: list,
-        seated: list,
+        obstacles: list,
+        swept: bool,
     ) -> float:
-        """How clear of obstacles (m, up to `clear_enough`) the hand comes down and closes at the grasp and comes down
-        beside the slot: the Panda's fingertips around the centroid, or the hand's own `jaw_pads` from its TCP (a
-        fixed jaw's on the outline, behind the shape along its y, or ahead when `ahead`)."""
+        """How clear of `obstacles` (m) the hand comes down (and, `swept`, closes) over a shape whose centroid is at
+        `xy`, turned by `rotation` from where it closes along `closing`: the Panda's fingertips around the centroid,
+        or the hand's own `jaw_pads` from its TCP (a fixed jaw's on the outline, behind the shape along its y, or
+        ahead when `ahead`)."""
         pads = self.cfg.jaw_pads
         if pads is None:
-            pick = fingertip_clearance(obj_xy, closing, around, swept=True)
-            goal = fingertip_clearance(goal_xy, closing + rotation, seated)
-        else:
-            y = closing + (math.pi if ahead else 0.0)  # the hand's y, along which its pads lie
-            # the TCP from the centroid along y (<= 0): a fixed jaw's face where it meets the outline
-            offset = (-contact.ahead_at if ahead else contact.behind_at) if self.fixed_jaw else 0.0
-            pick_tcp = np.asarray(obj_xy) + offset * np.array([math.cos(y), math.sin(y)])
-            pick = fingertip_clearance(pick_tcp, y, around, pads=pads)
-            y_goal = y + rotation
-            goal_tcp = np.asarray(goal_xy) + offset * np.array([math.cos(y_goal), math.sin(y_goal)])
-            goal = fingertip_clearance(goal_tcp, y_goal, seated, pads=pads)
-        return round(min(pick, goal, self.cfg.clear_enough), 3)
+            return fingertip_clearance(xy, closing + rotation, obstacles, swept=swept)
+        y = closing + rotation + (math.pi if ahead else 0.0)  # the hand's y, along which its pads lie
+        # the TCP from the centroid along y (<= 0): a fixed jaw's face where it meets the outline
+        offset = (-contact.ahead_at if ahead else contact.behind_at) if self.fixed_jaw else 0.0
+        tcp = np.asarray(xy) + offset * np.array([math.cos(y), math.sin(y)])
+        return fingertip_clearance(tcp, y, obstacles, pads=pads)
 
     def _plan_approach(self, start: Step | None = None) -> list[Step]:
         self.grasp_attempts += 1
