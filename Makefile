@@ -6,6 +6,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.kitbench-synced
 PYTEST_ARGS ?=
+# pytest-xdist workers (a core each); a test file stays on one worker, so its module fixtures are built once.
+PYTEST_WORKERS ?= auto
 # What ruff formats and lints (it picks the Python files out of these folders).
 LINT_PATHS := kitbench tests bench integrations scripts
 
@@ -42,7 +44,7 @@ lint: bootstrap
 	@$(call step,mypy kitbench,$(VENV)/bin/mypy kitbench)
 
 test: lint
-	@$(call step,pytest,$(PY) -m pytest $(PYTEST_ARGS))
+	@$(call step,pytest,$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS))
 
 # Applies the formatter and ruff's safe fixes; what remains is reported by `make lint`.
 fmt: bootstrap

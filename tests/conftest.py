@@ -5,6 +5,12 @@ import tempfile
 
 import pytest
 
+# Under pytest-xdist (`make test` runs a worker a core) each worker's torch keeps to one thread: two workers' OpenMP
+# pools spinning against each other on two cores run torch an order of magnitude slower. Set before any test module
+# imports torch, and inherited by the commands the tests start.
+if "PYTEST_XDIST_WORKER" in os.environ:
+    os.environ["OMP_NUM_THREADS"] = "1"
+
 # kitbench's frame cache (kitbench.training.frames) in a folder of the test run's own, set before any test module
 # copies the environment for the lerobot commands it runs
 if "KITBENCH_FRAME_CACHE" not in os.environ:
