@@ -51,13 +51,8 @@ class KitVariant:
     spawn_y: tuple[float, float] = SPAWN_Y
 
 
-# The SO-101's kit is 0.7 of the standard one (board 14 x 19.6 cm): its jaw spans at most ~5 cm, and on the full-size
-# kit its expert managed 4 of 20 seeds, shapes closed on across more than 3.5 cm sliding out of the jaw; 9 of the 20
-# standard shapes need more than that every way (the five-pointed star's narrowest is 4.3 cm), at 0.7 none needs more
-# than 3.0 cm. Heights scale too (shapes 2.1 cm tall, the board 1.4 cm thick): carried over a full-height kit the hand
-# was too high for the wrist to point straight down near the base. Pockets keep each shape's largest seated yaw
-# (clearances 0.48-1.4 mm). Its loose shape lies within 3 cm past the board's middle and 15 cm to either side, 12-26
-# cm in front of the base and to the side of it, where a downward jaw reaches the table (kitbench/robots/so101.py).
+# The SO-101's jaw spans ~5 cm: at 0.7 scale no shape needs more than 3 cm across its grasp, and the lower kit
+# lets its wrist point straight down; its shape spawns where a downward jaw reaches the table (docs/robots.md).
 ROBOT_VARIANTS = {"so101": KitVariant(scale=0.7, spawn_x=(-0.07, 0.03), spawn_y=(-0.15, 0.15))}
 SPAWN_MARGIN = 0.004  # m kept between a spawned shape and any pocket or the board edge
 SHAPE_DENSITY = 600.0  # kg/m^3, a plastic-like block of 12-27 g
