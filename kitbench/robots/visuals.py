@@ -46,8 +46,9 @@ def _write_obj(path: Path, parts: list[tuple[np.ndarray, np.ndarray, tuple[float
         lines += ["v {:.6f} {:.6f} {:.6f}".format(*v) for v in vertices]
         lines += ["f {} {} {}".format(*(f + offset)) for f in faces]
         offset += len(vertices)
-    tmp = path.with_suffix(".tmp")
-    mtl_tmp = mtl.with_suffix(".mtltmp")
+    # per-process names: workers (test workers, recording workers) may make the same mesh at once
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    mtl_tmp = mtl.with_suffix(f".{os.getpid()}.mtltmp")
     mtl_tmp.write_text("\n".join(mtl_lines))
     tmp.write_text("\n".join(lines) + "\n")
     os.replace(mtl_tmp, mtl)
