@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.kitbench-synced
 PYTEST_ARGS ?=
-# pytest-xdist workers (a core each); a test file stays on one worker, so its module fixtures are built once.
+# pytest-xdist workers (a core each; 0: one process); a test file stays on one worker, so its module fixtures are built once.
 PYTEST_WORKERS ?= auto
 # What ruff formats and lints (it picks the Python files out of these folders).
 LINT_PATHS := kitbench tests bench integrations scripts
