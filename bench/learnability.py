@@ -24,7 +24,8 @@ Newcombe's interval, and each training seed's rate with their spread.
 
 Before anything runs it prints what the run will do and what it will cost: the recordings, trainings and
 evaluations, this machine's reference workload (`kitbench.training.reference`: seconds of a fixed update loop on the
-training's threads; every row stores it), and the hours that makes from the config's published figures
+training's threads; every row stores it, and the same workload timed again as each training ends, so a machine
+that slowed down during a long training shows it), and the hours that makes from the config's published figures
 (`policies/published.toml`) scaled by the two machines' reference seconds. The run is resumable: a checkpoint
 whose training finished with the same command, and an evaluation report made by the same command, are reused, so
 a killed run started again picks up where it stopped.
@@ -493,6 +494,8 @@ def train(plan: Plan, data: Path, policy_dir: Path, seed: int | None = None) -> 
     if train_dir.exists():  # lerobot-train refuses an existing output folder
         shutil.rmtree(train_dir)
     seconds = run_logged(command, log, env)
+    # measured again as the training ends: a machine that slowed down during a long training shows it here
+    reference_after = reference_seconds(int(plan.train_threads))
     train_config = json.loads((checkpoint / "train_config.json").read_text())
     params, source = count_parameters(log, checkpoint)
     trained = {
@@ -507,6 +510,7 @@ def train(plan: Plan, data: Path, policy_dir: Path, seed: int | None = None) -> 
         "params": params,
         "params_source": source,
         "seed": train_config.get("seed"),
+        "reference_after": reference_after,
     }
     stamp.write_text(json.dumps({"request": request, "trained": {**trained, "dir": str(train_dir)}}, indent=1) + "\n")
     return {**trained, "reused": False}
@@ -598,7 +602,14 @@ def one_run(plan: Plan, demos: int, reference_s: float, on_row=None) -> list[dic
         print(f"[{name}] training {plan.policy}{which} ({plan.config}); log {policy_dir / 'train.log'}", flush=True)
         trained = train(plan, data, policy_dir, seed)
         done = "reused the checkpoint trained by the same command" if trained["reused"] else "trained"
-        print(f"[{name}]   {done}: {trained['steps']} steps in {trained['seconds'] / 60:.1f} min", flush=True)
+        after = trained.get("reference_after")  # absent from checkpoints stamped before it was measured
+        machine_then = (
+            f" (reference workload {after:.1f} s as it ended, {reference_s:.1f} s at this run's start)" if after else ""
+        )
+        print(
+            f"[{name}]   {done}: {trained['steps']} steps in {trained['seconds'] / 60:.1f} min{machine_then}",
+            flush=True,
+        )
         shared = {"demos": demos, "started": started, "name": name, "data": data, "record": record, "reused": reused}
         for suite in plan.suites:
             for options in plan.option_sets:
@@ -654,6 +665,7 @@ def _row(
         # would dominate the wall clock
         "steps_per_s": trained["steps"] / (trained["loop_seconds"] or trained["seconds"]),
         "reference_seconds": reference_s,
+        "reference_seconds_after_training": trained.get("reference_after"),
         "success": {"count": k, "episodes": n, "rate": k / n if n else 0.0, "ci95": [lo, hi]},
         "criteria": {c: r["rate"] for c, r in report["criteria"].items()},
         "failure_categories": report["failure_categories"],

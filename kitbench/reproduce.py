@@ -6,7 +6,7 @@ records the config's recipe with the published number of demonstrations (`kitben
 with stock `lerobot-train --config_path=policies/<config>.json` (torch on the cores the config's loader workers
 leave, as the published runs did), and scores the last checkpoint with `kitbench eval` on the published suites.
 Training minutes are printed beside the published ones scaled to this machine by a fixed reference workload
-(`kitbench.training.reference`) measured in the same run.
+(`kitbench.training.reference`) measured in the same run, before the training and again after it.
 """
 
 from __future__ import annotations
@@ -178,6 +178,7 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
         tail = "\n".join(log.read_text(errors="replace").splitlines()[-15:])
         raise KitbenchError(f"lerobot-train failed (exit {status}); its log: {log}\n{tail}")
     minutes = (time.monotonic() - started) / 60
+    after = reference_seconds(int(threads))  # a machine that slowed down during the training shows it here
     successes = episodes = 0
     for name in entry.suites:
         suite = load_suite(ROOT / "eval" / "suites" / f"{name}.toml")
@@ -210,7 +211,8 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
         there = scaled_minutes(entry.train_minutes, entry.reference_seconds, here)
         scaled = f"; the published {entry.train_minutes:.1f} min are {there:.1f} here"
     say(
-        f"training: {minutes:.1f} min for {config.steps or entry.steps} steps (reference workload {here:.1f} s{scaled})"
+        f"training: {minutes:.1f} min for {config.steps or entry.steps} steps (reference workload {here:.1f} s before "
+        f"it, {after:.1f} s after{scaled})"
     )
     (config.folder / "reproduce.json").write_text(
         json.dumps(
@@ -223,6 +225,7 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
                 "inside": inside,
                 "train_minutes": minutes,
                 "reference_seconds": here,
+                "reference_seconds_after_training": after,
                 "train_command": command,
             },
             indent=1,

@@ -67,6 +67,8 @@ def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_p
         (2, "standard"),
     ]
     assert all(r["reference_seconds"] > 0 and r["success"]["episodes"] == 2 for r in rows)
+    assert all(r["reference_seconds_after_training"] > 0 for r in rows)  # timed again as each training ended
+    assert run.stdout.count("s at this run's start)") == 2  # one line per training
     heldout = [r for r in rows if r["suite_name"] == "heldout"]
     assert all("lift_peg_upright_heldout.toml" in r["commands"]["eval"] for r in heldout)
     pooled = run.stdout[run.stdout.index("act, 2 demos, training seeds 1, 2, suites standard, heldout:") :]
@@ -78,5 +80,6 @@ def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_p
     again = _bench(*args, cwd=ROOT)
     assert again.returncode == 0, again.stderr[-3000:]
     assert again.stdout.count("reused the checkpoint trained by the same command") == 2
+    assert again.stdout.count("s as it ended") == 2  # the stamp keeps what the training's end measured
     rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
     assert len(rows) == 8 and all(r["train_reused"] for r in rows[4:])

@@ -52,6 +52,7 @@ def test_reproduce_runs_end_to_end_and_compares_with_the_stated_interval(tmp_pat
     assert f"{CONFIG}: {result['success']}/4 = " in printed and "inside the published interval" in printed
     assert (out / "eval_lift_peg_upright_heldout" / "report.json").is_file()
     assert result["train_command"][-1] == "--seed=1000" and result["reference_seconds"] > 0
+    assert result["reference_seconds_after_training"] > 0
 
     # the recording is resumed, not made again; an interval the figure misses exits 3
     low = min(0.99, result["success"] / 4 + 0.01)
