@@ -1,11 +1,12 @@
 """Denormal floats flushed to zero while `lerobot-train` runs.
 
-Adam's second-moment estimate of a weight whose gradient stays near zero shrinks by beta2 each step until it is
-denormal (below 1.2e-38 in float32), where x86 arithmetic takes a microcode path: after ~2,500 steps the optimizer
-step of `diffusion_assembling_kits_state` took four times as long on the CPU (docs/training.md, "Denormals").
-Flushing them to zero, as TensorFlow's CPU thread pools do, changes no value above that range. The LeRobot plugin
-calls `install` when lerobot imports it, which `lerobot-train` does first thing, before torch starts the thread
-pool whose threads inherit the setting; `KITBENCH_FLUSH_DENORMALS=0` keeps IEEE denormals.
+A weight that never gets a gradient from the data (its only gradient is weight decay's) shrinks towards zero, and
+its Adam moments become denormal (below 1.2e-38 in float32), where x86 arithmetic takes a microcode path: after
+~2,500 steps the optimizer step of `diffusion_assembling_kits_state` took four times as long on the CPU
+(docs/training.md, "Denormals"). Flushing them to zero, as TensorFlow's CPU thread pools do, left every weight
+that touches data bit for bit the same there. The LeRobot plugin calls `install` when lerobot imports it, which
+`lerobot-train` does first thing, before torch starts the thread pool whose threads inherit the setting;
+`KITBENCH_FLUSH_DENORMALS=0` keeps IEEE denormals.
 """
 
 from __future__ import annotations
@@ -41,13 +42,10 @@ def in_training() -> bool:
     return TRAINING_SCRIPT in sys.modules or getattr(main, "name", None) == TRAINING_SCRIPT
 
 
-def install(training_only: bool = True) -> bool:
-    """Flush denormals to zero in this process (the threads it starts from now on inherit it); True when done.
-
-    With `training_only`, only in a process running lerobot's training script: evaluation and recording keep
-    torch's default, so their results stay bit-identical to runs without the plugin."""
-    if training_only and not in_training():
-        return False
-    if not wanted():
+def install() -> bool:
+    """Flush denormals to zero in this process when it runs lerobot's training script (the threads it starts from
+    now on inherit it); True when done. Evaluation and recording keep torch's default, so their results stay
+    bit-identical to runs without the plugin."""
+    if not in_training() or not wanted():
         return False
     return bool(torch.set_flush_denormal(True))
