@@ -53,10 +53,7 @@ import os
 import platform
 import re
 import shlex
-import shutil
-import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import version
@@ -74,36 +71,29 @@ from kitbench.evaluation.suite import load_suite
 from kitbench.metadata import read_recording_settings
 from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
 from kitbench.registration import canonical_task, task_entry
+from kitbench.training import run
 from kitbench.training.reference import reference_seconds, scaled_minutes
 
 ROOT = Path(__file__).resolve().parents[1]
 PUBLISHED = ROOT / "policies" / "published.toml"
 SUITE_NAMES = {"standard": "{snake}.toml", "heldout": "{snake}_heldout.toml"}
-BIN = Path(sys.executable).parent  # the venv's console scripts, whichever way the script was started
+BIN = run.BIN
 OBS_CHOICES = ("state", "rgb")
 ENV_OBS_TYPE = {"state": "state", "rgb": "pixels_state"}  # the lerobot env config's name for each
 # the data never comes from the Hub (dataset.root is local), and a stray lookup must not stall a long run
-ENV = {**os.environ, "HF_HUB_OFFLINE": "1"}
+ENV = run.ENV
 # lerobot-train's config has no thread setting. torch's intra-op threads default to one per core, and on a machine
 # with few cores they fight the data loader's worker processes for them: ACT 2.65 M on 2 cores, batch 32, trained
 # at 8.3 steps/s with torch's 2 threads and 1 worker (9.4 with 0 workers, 8.1 with 2) and at 14.1 steps/s with 1
 # thread and 2 workers, whose loading (~2 ms a sample in `datasets`) then runs beside the update instead of against
 # it (bench/train_throughput.py, one run). So training gets the cores the workers leave, at least one, unless the
 # caller chose.
-THREADS_VAR = "OMP_NUM_THREADS"
+THREADS_VAR = run.THREADS_VAR
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
-LOG_TAIL_LINES = 30
 
 
 class UsageError(Exception):
     """A bad argument, reported before anything is written."""
-
-
-class CommandFailed(Exception):
-    def __init__(self, command: list[str], log: Path, status: int):
-        how = f"killed by signal {-status}" if status < 0 else f"exit status {status}"
-        super().__init__(f"{how}: {shlex.join(command)}")
-        self.command, self.log, self.status = command, log, status
 
 
 @dataclass(frozen=True)
@@ -134,6 +124,7 @@ class Plan:
     option_sets: tuple[tuple[tuple[str, object], ...], ...] = ((),)
     # lerobot-train's --seed per training; None: the config's own
     train_seeds: tuple[int | None, ...] = (None,)
+    progress: bool = True  # the training's steps shown as they come (a line a minute off a terminal)
 
 
 def parse_sweep(texts: list[str], policy_type: str) -> tuple[tuple[tuple[str, object], ...], ...]:
@@ -338,7 +329,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         control_mode=args.control_mode or recorded_mode,
         control_mode_flag=args.control_mode,
         config_has_env=bool(env),
-        train_threads=os.environ.get(THREADS_VAR) or str(max(1, (os.cpu_count() or 1) - workers)),
+        train_threads=run.train_threads(config, (published_entry(config) or {}).get("threads")),
         action_noise=args.action_noise,
         noise_phases=args.noise_phases,
         settle_steps=args.settle_steps,
@@ -348,36 +339,6 @@ def check_args(args: argparse.Namespace) -> Plan:
         option_sets=parse_sweep(args.policy_option or [], config_data["policy"]["type"]),
         train_seeds=parse_train_seeds(args.train_seeds),
     )
-
-
-def log_tail(log: Path, lines: int = LOG_TAIL_LINES) -> str:
-    """The last lines of a log, each progress bar's redrawn line reduced to its final state."""
-    try:
-        text = log.read_text(errors="replace")
-    except OSError:
-        return "(no log)"
-    return "\n".join(line.rsplit("\r", 1)[-1] for line in text.splitlines()[-lines:])
-
-
-def run_logged(command: list[str], log: Path, env: dict[str, str] | None = None) -> float:
-    """Run a command with its output in `log`, with the variables `env` set on top of ENV; the wall-clock seconds
-    it took, or CommandFailed."""
-    log.parent.mkdir(parents=True, exist_ok=True)
-    start = time.monotonic()
-    with log.open("w") as f:
-        f.write(f"$ {shell_line(command, env)}\n")
-        f.flush()
-        status = subprocess.run(
-            command, stdout=f, stderr=subprocess.STDOUT, env={**ENV, **(env or {})}, check=False
-        ).returncode
-    if status != 0:
-        raise CommandFailed(command, log, status)
-    return time.monotonic() - start
-
-
-def shell_line(command: list[str], env: dict[str, str] | None = None) -> str:
-    """The command as one shell line, with the variables it is run with in front (`OMP_NUM_THREADS=1 lerobot-...`)."""
-    return " ".join([*(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items()), shlex.join(command)])
 
 
 def record_command(plan: Plan, demos: int, data: Path) -> list[str]:
@@ -424,96 +385,29 @@ def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bo
     ):
         return command, True
     stamp.unlink(missing_ok=True)
-    run_logged(command, run_dir / "record.log")
+    run.run_logged(command, run_dir / "record.log")
     recorded = read_recording_settings(data)
     if recorded is None:
-        raise CommandFailed(command, run_dir / "record.log", 0)  # exited 0 yet left no kitbench dataset
+        raise run.CommandFailed(command, run_dir / "record.log", 0)  # exited 0 yet left no kitbench dataset
     stamp.write_text(json.dumps({**request, "recording": recorded}, indent=1) + "\n")
     return command, False
 
 
-def train_command(plan: Plan, data: Path, train_dir: Path, seed: int | None = None) -> list[str]:
-    command = [
-        str(BIN / "lerobot-train"),
-        f"--config_path={plan.config}",
-        f"--dataset.root={data}",
-        f"--output_dir={train_dir}",
-    ]
-    if seed is not None:
-        command.append(f"--seed={seed}")
-    if plan.steps is not None:
-        command.append(f"--steps={plan.steps}")
-    if plan.control_mode_flag is not None and plan.config_has_env:
-        command.append(f"--env.control_mode={plan.control_mode_flag}")
-    return command
-
-
-def count_parameters(log: Path, checkpoint: Path) -> tuple[int, str]:
-    """The policy's parameter count: lerobot-train's own log line, else the checkpoint's tensors."""
-    found = re.findall(r"num_total_params=(\d+)", log.read_text(errors="replace"))
-    if found:
-        return int(found[-1]), "train log"
-    from safetensors import safe_open
-
-    with safe_open(checkpoint / "model.safetensors", framework="pt") as f:
-        names = f.keys()  # a safe_open handle has keys() but cannot be iterated itself
-        return sum(math.prod(f.get_slice(k).get_shape()) for k in names), "model.safetensors"
-
-
-def loop_seconds(log: Path) -> float | None:
-    """Seconds of lerobot-train's training loop, from its log's timestamps (whole seconds): from the parameter
-    count, its last line before the loop, to "End of training". None if either line is missing."""
-    stamps = {}
-    for line in log.read_text(errors="replace").splitlines():
-        match = re.match(r"\w+ (\d{4}-\d\d-\d\d \d\d:\d\d:\d\d) .*(num_total_params=|End of training)", line)
-        if match:
-            stamps[match[2]] = datetime.strptime(match[1], "%Y-%m-%d %H:%M:%S")
-    if len(stamps) < 2:
-        return None
-    return (stamps["End of training"] - stamps["num_total_params="]).total_seconds()
-
-
 def train(plan: Plan, data: Path, policy_dir: Path, seed: int | None = None) -> dict:
-    """Train, or reuse a checkpoint whose training finished with the same command on the same data (its stamp,
-    written last, says so)."""
-    train_dir = policy_dir / "train"
-    command = train_command(plan, data, train_dir, seed)
-    log = policy_dir / "train.log"
-    env = {THREADS_VAR: plan.train_threads}
-    stamp = policy_dir / "train_done.json"
-    data_stamp = (
-        (data.parent / "record_request.json").read_text() if (data.parent / "record_request.json").is_file() else ""
+    """Train (or reuse a checkpoint the same command trained on the same data): `kitbench.training.run.train`."""
+    extra = (f"--env.control_mode={plan.control_mode_flag}",) if plan.control_mode_flag and plan.config_has_env else ()
+    stamp = data.parent / "record_request.json"
+    return run.train(
+        plan.config,
+        data,
+        policy_dir,
+        threads=plan.train_threads,
+        steps=plan.steps,
+        seed=seed,
+        extra=extra,
+        data_stamp=stamp.read_text() if stamp.is_file() else "",
+        progress=plan.progress,
     )
-    request = {"command": command, "env": env, "data": hashlib.sha256(data_stamp.encode()).hexdigest()}
-    checkpoint = train_dir / "checkpoints" / "last" / "pretrained_model"
-    if stamp.is_file() and (checkpoint / "model.safetensors").is_file():
-        done = json.loads(stamp.read_text())
-        if done.get("request") == request:
-            return {**done["trained"], "dir": train_dir, "reused": True}
-    stamp.unlink(missing_ok=True)
-    if train_dir.exists():  # lerobot-train refuses an existing output folder
-        shutil.rmtree(train_dir)
-    seconds = run_logged(command, log, env)
-    # measured again as the training ends: a machine that slowed down during a long training shows it here
-    reference_after = reference_seconds(int(plan.train_threads))
-    train_config = json.loads((checkpoint / "train_config.json").read_text())
-    params, source = count_parameters(log, checkpoint)
-    trained = {
-        "command": command,
-        "env": env,
-        "dir": train_dir,
-        "seconds": seconds,
-        "steps": train_config["steps"],
-        "batch_size": train_config.get("batch_size"),
-        "device": (train_config.get("policy") or {}).get("device"),
-        "loop_seconds": loop_seconds(log),
-        "params": params,
-        "params_source": source,
-        "seed": train_config.get("seed"),
-        "reference_after": reference_after,
-    }
-    stamp.write_text(json.dumps({"request": request, "trained": {**trained, "dir": str(train_dir)}}, indent=1) + "\n")
-    return {**trained, "reused": False}
 
 
 def eval_dir_name(suite_name: str, options: tuple[tuple[str, object], ...]) -> str:
@@ -530,37 +424,17 @@ def evaluate(
 ) -> tuple[list[str], dict, bool]:
     """Score the checkpoint on `suite`, or reuse the report the same command wrote; (command, report, reused)."""
     eval_dir = policy_dir / eval_dir_name(suite[0], options)
-    command = [
-        str(BIN / "kitbench"),
-        "eval",
-        "--suite",
-        str(suite[1]),
-        "--policy",
-        f"lerobot:{train_dir}",
-        "--out",
-        str(eval_dir),
-        "--overwrite",
-        "--videos",
-        "0",
-        "--obs-mode",
-        plan.obs,
-        # the suite's seeds, in the control mode the policy learned (the suite file names the recorder's default)
-        "--control-mode",
-        plan.control_mode,
-    ]
-    if plan.suite_episodes is not None:
-        command += ["--episodes", str(plan.suite_episodes)]
-    if plan.eval_batch_size > 1:
-        command += ["--batch-size", str(plan.eval_batch_size)]
-    for key, value in options:
-        command += ["--policy-option", f"{key}={json.dumps(value)}"]
-    stamp = eval_dir.with_name(eval_dir.name + ".request.json")
-    if stamp.is_file() and (eval_dir / REPORT_JSON).is_file() and json.loads(stamp.read_text()) == command:
-        return command, json.loads((eval_dir / REPORT_JSON).read_text()), True
-    stamp.unlink(missing_ok=True)
-    run_logged(command, eval_dir.with_name(eval_dir.name + ".log"))
-    stamp.write_text(json.dumps(command) + "\n")
-    return command, json.loads((eval_dir / REPORT_JSON).read_text()), False
+    command = run.eval_command(
+        train_dir,
+        suite[1],
+        eval_dir,
+        control_mode=plan.control_mode,
+        episodes=plan.suite_episodes,
+        batch_size=plan.eval_batch_size,
+        options=options,
+    )
+    report, reused = run.evaluate(command, eval_dir)
+    return command, report, reused
 
 
 def machine() -> dict:
@@ -681,7 +555,7 @@ def _row(
         "suite": str(suite[1]),
         "commands": {
             "record": shlex.join(record),
-            "train": shell_line(trained["command"], trained["env"]),
+            "train": run.shell_line(trained["command"], trained["env"]),
             "eval": shlex.join(eval_cmd),
         },
         "paths": {
@@ -932,11 +806,11 @@ def main() -> int:
     try:
         for demos in plan.demos:
             one_run(plan, demos, reference_s, on_row)
-    except CommandFailed as exc:
+    except run.CommandFailed as exc:
         if rows:
             print(table(rows))
         print(f"learnability: error: command failed with {exc}", file=sys.stderr)
-        print(f"--- last lines of {exc.log} ---\n{log_tail(exc.log)}", file=sys.stderr)
+        print(f"--- last lines of {exc.log} ---\n{run.log_tail(exc.log)}", file=sys.stderr)
         return 1
     print()
     print(f"{plan.task} · {plan.obs} · {plan.policy}" + (f" · {plan.tag}" if plan.tag else ""))

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import kitbench
+from kitbench import faults
 from kitbench.config.declare import setting
 from kitbench.config.flags import add_flags, given
 from kitbench.errors import KitbenchError
@@ -124,8 +125,8 @@ class ConvertCommand:
 
 
 # What a conversion may set; the rest is its source's (task, robot, seeds, reward, settling).
-CONVERT_FLAGS = ("obs_mode", "control_mode", "pointcloud_points", "rgb_storage", "workers", "executor",
-                 "ray_address", "resume", "overwrite", "mcap", "commit_interval")  # fmt: skip
+CONVERT_FLAGS = ("obs_mode", "control_mode", "pointcloud_points", "camera_size", "rgb_storage", "workers",
+                 "executor", "ray_address", "resume", "overwrite", "mcap", "commit_interval")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -161,7 +162,7 @@ COMMANDS = {
     ),
     "reproduce": Command(
         "record, train and score a shipped config as published (policies/published.toml) and say whether its "
-        "figure falls inside the published interval (exit 3 when not)",
+        "figure lands where the published runs predict a new training seed lands (exit 3 when not)",
         _reproduce,
         (("kitbench.reproduce:ReproduceConfig", None),),
     ),
@@ -207,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     command = COMMANDS[args.command]
     flags: dict[str, Any] = {}
     try:
+        faults.arm()
         for config, only in command.settings:
             flags.update({k: v for k, v in given(_config(config), args).items() if only is None or k in only})
         return command.run(flags)

@@ -171,8 +171,9 @@ class LearningLoop:
 
 def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     """The image config where torch sees CUDA (it needs a GPU), else the state config (2 CPU cores suffice)."""
-    from kitbench.reproduce import load_published, train_threads
+    from kitbench.reproduce import load_published
     from kitbench.training.reference import reference_seconds, scaled_minutes
+    from kitbench.training.run import train_threads
 
     name = "act_lift_peg_upright_rgb" if cuda else "act_lift_peg_upright_state"
     entry = load_published()[name]
@@ -180,7 +181,7 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     recipe = entry.recipe.relative_to(ROOT)
     train_dir = Path("outputs/train") / name
     suite = Path("eval/suites") / f"{entry.suites[0]}.toml"
-    threads = train_threads(config)
+    threads = train_threads(config, entry.threads)
     published = f"{entry.rate:.0%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
     if entry.reference_seconds:
         here = reference_seconds(int(threads)) if reference_s is None else reference_s

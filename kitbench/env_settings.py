@@ -8,16 +8,40 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from kitbench.config.checks import one_of, positive_int
+from kitbench.config.checks import one_of, optional, positive_int
 from kitbench.config.declare import setting
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.envs.modes import IMAGE_OBS_MODES, REWARD_MODES
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, canonical_task, task_entry
+from kitbench.sim.cameras import OBSERVATION_SIZE
 
 # What a recording stores and a suite scores: the state alone, or what the cameras give (a point cloud included).
 OBS_MODES = ("state", *IMAGE_OBS_MODES)
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """`WxH` or `N` (N x N) as (width, height); a bad value is one line."""
+    parts = str(text).lower().split("x")
+    if len(parts) in (1, 2) and all(p.isdigit() and 8 <= int(p) <= 4096 for p in parts):
+        return int(parts[0]), int(parts[-1])
+    raise KitbenchError(
+        f"camera_size must be WIDTHxHEIGHT or one side, 8 to 4096 pixels (e.g. 64x64 or 96), got {text!r}"
+    )
+
+
+def canonical_size(text: object) -> str | None:
+    """One spelling of a camera size, so that settings compare: "WxH", and None for the cameras' own
+    (`OBSERVATION_SIZE`), however it was asked for (64 and "64x64" are the same; so are None and "128x128")."""
+    if text is None:
+        return None
+    size = parse_size(text)  # type: ignore[arg-type]
+    return None if size == OBSERVATION_SIZE else f"{size[0]}x{size[1]}"
+
+
+def _size(name: str, value: object) -> None:
+    parse_size(value)  # type: ignore[arg-type]
 
 
 def _task(name: str, value: object) -> None:
@@ -68,6 +92,21 @@ class TaskSettings:
 class PolicyEnvSettings(TaskSettings):
     # Points per frame with obs_mode pointcloud, sampled with the episode's seed (as a dataset stores them).
     pointcloud_points: int = setting(DEFAULT_POINTS, check=positive_int)
+    # Every observation camera's image, WIDTHxHEIGHT pixels (one number: a square), each camera keeping its field of
+    # view (default: the task's and robot's own, 128x128). A policy is scored at the size it was trained at.
+    camera_size: str | None = setting(None, check=optional(_size), metavar="WxH")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.camera_size = canonical_size(self.camera_size)
+
+    @property
+    def sensor_configs(self) -> dict[str, int] | None:
+        """`camera_size` as the env's (ManiSkill's) `sensor_configs`."""
+        if self.camera_size is None:
+            return None
+        width, height = parse_size(self.camera_size)
+        return {"width": width, "height": height}
 
 
 @dataclass

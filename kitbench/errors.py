@@ -16,3 +16,23 @@ def check_choice(kind: str, value: object, choices) -> None:
     """Refuse `value` unless it is one of `choices`, naming them all."""
     if value not in choices:
         raise KitbenchError(f"unknown {kind} {value!r}; valid choices: {', '.join(map(str, choices))}")
+
+
+def report_in_one_line(program: str) -> None:
+    """Have an uncaught `KitbenchError` print as the one line it is (`<program>: error: ...`) instead of a traceback,
+    in a program kitbench does not run itself (lerobot-train and lerobot-eval, through the plugin); the process
+    still exits 1. Anything else keeps its traceback."""
+    import sys
+
+    previous = sys.excepthook
+
+    def hook(kind, value, traceback) -> None:
+        cause = value
+        while cause is not None and not isinstance(cause, KitbenchError):  # draccus wraps a config's own errors
+            cause = cause.__cause__ or cause.__context__
+        if cause is not None:
+            print(f"{program}: error: {cause}", file=sys.stderr)
+        else:
+            previous(kind, value, traceback)
+
+    sys.excepthook = hook

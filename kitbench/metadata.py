@@ -15,6 +15,7 @@ the `episode_seed` feature's entry (`CARRIER`), and each episode's facts are rea
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +47,7 @@ IDENTITY = (
     "reward_mode",
     "robot",
     "pointcloud_points",
+    "camera_size",
     "rgb_storage",
     "label",
     "source",
@@ -70,6 +72,7 @@ class RecordingInfo:
     reward_mode: str = "dense"
     robot: str | None = None  # None: the task's default robot
     pointcloud_points: int | None = None  # kept for obs_mode pointcloud only
+    camera_size: str | None = None  # "WxH" when not the cameras' own size
     rgb_storage: str = "video"
     label: str | None = None  # who labelled each frame's action (DAgger); None: the acting policy
     source: str | None = None  # the recording a conversion re-simulated
@@ -78,6 +81,8 @@ class RecordingInfo:
     fps: int | None = None
     seeds: list[int] | None = None  # the episodes' seeds when not consecutive (`kitbench eval --save-dataset`)
     made_by: str | None = None  # the command that made it, when not `kitbench record` with these settings
+    episodes_sha256: str | None = None  # EPISODES_FILE's digest when this file was written beside it (`write`)
+    features_sha256: str | None = None  # the digest of INFO_FILE's features then (`features_digest`)
     format: int = 1
     extra: dict[str, Any] = field(default_factory=dict)  # keys this kitbench does not know (a newer one's)
 
@@ -107,7 +112,7 @@ class RecordingInfo:
     def from_features(cls, root: Path, seeds: list[int] | None = None) -> RecordingInfo | None:
         """`seeds`: the episodes' seeds when the caller has read them already."""
         lerobot = lerobot_info(root)
-        carried = _carried(lerobot)
+        carried = carried_settings(lerobot)
         if carried is None or not (root / "meta" / "episodes").is_dir():
             return None  # not kitbench's, or a LeRobot session never finalized (a killed first commit)
         if seeds is None:
@@ -134,14 +139,48 @@ class RecordingInfo:
         """What the file holds: every setting, less those a recording of its kind never had (None past the
         identity's end), plus any unknown keys kept from the file it was read from."""
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"}
-        optional = ("pointcloud_points", "label", "source", "repo_id", "fps", "seeds", "made_by")
+        optional = (
+            "pointcloud_points",
+            "camera_size",
+            "label",
+            "source",
+            "repo_id",
+            "fps",
+            "seeds",
+            "made_by",
+            "episodes_sha256",
+            "features_sha256",
+        )
         data = {k: v for k, v in data.items() if not (k in optional and v is None)}
         return {**data, **self.extra}
 
     def write(self, root: str | Path) -> None:
+        """Write the settings file at `root`, with the digests of the episode file and of LeRobot's features written
+        there before it (which `kitbench.integrity` checks: either edited afterwards is refused, not believed)."""
         path = Path(root) / RECORDING_FILE
+        episodes = Path(root) / EPISODES_FILE
+        digests = {
+            "episodes_sha256": episodes_digest(episodes.read_bytes()) if episodes.is_file() else None,
+            "features_sha256": features_digest(lerobot_info(Path(root)).get("features")),
+        }
+        data = {k: v for k, v in self.to_json().items() if k not in (*digests, "format")}
+        data = {**data, **digests, "format": FORMAT}
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({**self.to_json(), "format": FORMAT}, indent=2) + "\n")
+        path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}, indent=2) + "\n")
+
+    def validate(self) -> None:
+        """Each setting has its type (a file edited by hand may not): a one-line `KitbenchError` naming it."""
+        for name, kinds in _SETTING_TYPES.items():
+            value = getattr(self, name)
+            if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+                raise KitbenchError(f"{RECORDING_FILE}: {name} is {value!r}, not a valid value")
+        for name in ("noise_phases", "seeds"):
+            items = getattr(self, name)
+            kind = str if name == "noise_phases" else int
+            if items is not None and not all(isinstance(v, kind) and not isinstance(v, bool) for v in items):
+                raise KitbenchError(f"{RECORDING_FILE}: {name} is {items!r}, not a valid value")
+        if not 1 <= self.format <= FORMAT:
+            raise KitbenchError(f"{RECORDING_FILE}: format {self.format} is not one this kitbench reads (1..{FORMAT})")
 
     def carried(self) -> dict:
         """The settings the `CARRIER` feature's entry holds: those every part of a merged recording shares."""
@@ -169,6 +208,48 @@ class RecordingInfo:
         return self.robot or task_entry(self.task).env_class.supported_robots[0]
 
 
+_NONE = type(None)
+# The type of each setting a settings file may hold (`RecordingInfo.validate`).
+_SETTING_TYPES: dict[str, tuple[type, ...]] = {
+    "task": (str,),
+    "seed": (int,),
+    "obs_mode": (str,),
+    "control_mode": (str,),
+    "policy": (str,),
+    "only_success": (bool,),
+    "action_noise": (int, float),
+    "noise_phases": (list, _NONE),
+    "settle_steps": (int,),
+    "reward_mode": (str,),
+    "robot": (str, _NONE),
+    "pointcloud_points": (int, _NONE),
+    "camera_size": (str, _NONE),
+    "rgb_storage": (str,),
+    "label": (str, _NONE),
+    "source": (str, _NONE),
+    "kitbench_version": (str, _NONE),
+    "repo_id": (str, _NONE),
+    "fps": (int, _NONE),
+    "seeds": (list, _NONE),
+    "made_by": (str, _NONE),
+    "episodes_sha256": (str, _NONE),
+    "features_sha256": (str, _NONE),
+    "format": (int,),
+}
+
+
+def episodes_digest(data: bytes) -> str:
+    """The digest of an episode file's bytes, as the settings file keeps it."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def features_digest(features: dict | None) -> str | None:
+    """The digest of LeRobot's feature entries (whatever their key order), as the settings file keeps it."""
+    if features is None:
+        return None
+    return hashlib.sha256(json.dumps(features, sort_keys=True).encode()).hexdigest()
+
+
 @dataclass
 class EpisodeInfo:
     """One line of `meta/kitbench_episodes.jsonl`: what LeRobot has no place for."""
@@ -189,6 +270,24 @@ class EpisodeInfo:
     def to_json(self) -> dict:
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "config"}
         return {**data, **self.config}
+
+    def validate(self) -> None:
+        """Each fact has its type (a file edited by hand may not): a one-line `KitbenchError` naming it."""
+
+        def whole(v: object) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool)
+
+        checks = {
+            "episode_index": whole(self.episode_index) and self.episode_index >= 0,
+            "seed": whole(self.seed),
+            "success": isinstance(self.success, bool),
+            "length": whole(self.length) and self.length > 0,
+            "first_success": self.first_success is None or whole(self.first_success),
+            "task": self.task is None or isinstance(self.task, str),
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise KitbenchError(f"{name} is {getattr(self, name)!r}, not a valid value")
 
 
 def read_episode_file(root: str | Path) -> list[EpisodeInfo]:
@@ -309,12 +408,14 @@ def is_recording(root: str | Path) -> bool:
     root = Path(root)
     if (root / RECORDING_FILE).is_file():
         return True
-    return _carried(lerobot_info(root)) is not None
+    return carried_settings(lerobot_info(root)) is not None
 
 
-def _carried(lerobot: dict) -> dict | None:
+def carried_settings(lerobot: dict) -> dict | None:
     """The recording's settings the `CARRIER` feature's entry in LeRobot's info carries; None without them."""
-    carried = lerobot.get("features", {}).get(CARRIER, {}).get("info", {}).get("kitbench")
+    carried: Any = lerobot
+    for key in ("features", CARRIER, "info", "kitbench"):  # any level may be missing, or edited into a non-object
+        carried = carried.get(key) if isinstance(carried, dict) else None
     return carried if isinstance(carried, dict) else None
 
 

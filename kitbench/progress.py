@@ -58,11 +58,14 @@ class PlainProgress:
             print(self._line(), file=self.stream, flush=True)
 
 
-def progress(total: int, desc: str, unit: str = "ep", stream: TextIO | None = None) -> Progress:
-    """A progress bar for `total` items: tqdm when `stream` (default stderr) is a terminal, plain lines else."""
+def progress(
+    total: int, desc: str, unit: str = "ep", stream: TextIO | None = None, interval: float = PLAIN_INTERVAL
+) -> Progress:
+    """A progress bar for `total` items: tqdm when `stream` (default stderr) is a terminal, plain lines (one per
+    `interval` seconds at most) else."""
     stream = stream if stream is not None else sys.stderr
     if stream.isatty():
         from tqdm import tqdm
 
         return tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, file=stream)
-    return PlainProgress(total, desc, unit, stream)
+    return PlainProgress(total, desc, unit, stream, interval)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,14 @@ class SettleSettings:
     # Steps an episode runs on after its first success (the task itself ends it there), the policy holding or
     # finishing the task; scored, above 0 makes success_at_end the headline instead of success_once.
     settle_steps: int = setting(0, check=non_negative_int)
+
+
+class Control(Enum):
+    """What a person at the controls asked of the episode in flight, with lerobot-record's keys."""
+
+    NEXT = "next"  # right arrow: end it now, kept as any episode
+    RERECORD = "rerecord"  # left arrow: discard it and run its seed again
+    STOP = "stop"  # escape: end it now, kept as any episode, and stop the recording
 
 
 @dataclass
@@ -55,6 +64,7 @@ class Episode:
     steps: int = 0  # control steps taken
     first_success: int | None = None  # the index of the step whose outcome was the first success
     done: bool = False
+    control: Control | None = None  # set by the hook that ended the episode at a person's request
 
     @property
     def success(self) -> bool:

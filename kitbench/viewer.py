@@ -36,10 +36,13 @@ class ViewSettings:
 def view(root: Path, episode: int = 0, save: Path | None = None) -> Path | None:
     """Show episode `episode` of the dataset at `root`, or write it to `save` (a folder; the default without a
     display is outputs/view). Returns the .rrd file written, if any."""
+    from kitbench.integrity import check_dataset
+
     root = Path(root)
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
         raise KitbenchError(f"{root} is not a LeRobot dataset (no meta/info.json); give a dataset folder")
+    check_dataset(root)
     episodes = json.loads(info_path.read_text()).get("total_episodes", 0)
     if not (isinstance(episode, int) and 0 <= episode < episodes):
         raise KitbenchError(f"episode {episode} is not in {root}: it has {episodes} (valid: 0 to {episodes - 1})")

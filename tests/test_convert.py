@@ -113,14 +113,35 @@ def test_absolute_targets_beyond_a_delta_box_are_reached_with_catch_up_steps(tmp
     assert len(src["action"]) < len(a["action"])
 
 
+def swap_seeds(root: Path) -> None:
+    """Swap the first two episodes' seeds everywhere a recording keeps them (its data's `episode_seed` column, its
+    episode file, the digest written with it), as a recorder that mixed them up would have written them."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from kitbench.metadata import RecordingInfo
+
+    data = next((root / "data").rglob("*.parquet"))
+    table = pq.read_table(data)
+    episode, seed = table.column("episode_index").to_numpy(), table.column("episode_seed").to_numpy().copy()
+    first, second = seed[episode == 0][0], seed[episode == 1][0]
+    seed[episode == 0], seed[episode == 1] = second, first
+    column = table.schema.get_field_index("episode_seed")
+    pq.write_table(table.set_column(column, table.schema.field(column), pa.array(seed)), data)
+    episodes_file = root / "meta/kitbench_episodes.jsonl"
+    episodes = [json.loads(x) for x in episodes_file.open()]
+    episodes[0]["seed"], episodes[1]["seed"] = episodes[1]["seed"], episodes[0]["seed"]
+    episodes_file.write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    info = RecordingInfo.read(root)
+    info.seeds = [e["seed"] for e in episodes]  # no longer consecutive: the settings list them
+    info.write(root)
+
+
 def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
     """A source whose seeds no longer match its actions (two episodes' seeds swapped): each replay grasps where
     the other episode's peg lay, and the conversion says so instead of storing it."""
     source = _source(tmp_path / "src", "pd_joint_pos", episodes=2, mcap=False)
-    episodes_file = source / "meta/kitbench_episodes.jsonl"
-    episodes = [json.loads(x) for x in episodes_file.open()]
-    episodes[0]["seed"], episodes[1]["seed"] = episodes[1]["seed"], episodes[0]["seed"]
-    episodes_file.write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    swap_seeds(source)
     out = tmp_path / "deltas"
     run = subprocess.run(
         [sys.executable, "-m", "kitbench.cli", "convert", str(source), "--out", str(out)]

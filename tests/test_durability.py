@@ -12,13 +12,13 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
 import kitbench  # noqa: F401
 from kitbench.recording.journal import EpisodeJournal, journal_root
 from kitbench.recording.recorder import RecordConfig, record
+from tests.datasets_equal import same_content
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONUNBUFFERED": "1"}
@@ -49,16 +49,7 @@ def _dataset(out: Path) -> tuple[pd.DataFrame, list[dict]]:
 
 
 def _assert_same_dataset(a: Path, b: Path) -> None:
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    frames_a, episodes_a = _dataset(a)
-    frames_b, episodes_b = _dataset(b)
-    assert episodes_a == episodes_b
-    assert list(frames_a.columns) == list(frames_b.columns)
-    for column in frames_a.columns:
-        np.testing.assert_array_equal(np.stack(frames_a[column].to_numpy()), np.stack(frames_b[column].to_numpy()))
-    assert sorted(p.name for p in (a / "mcap").glob("*.mcap")) == sorted(p.name for p in (b / "mcap").glob("*.mcap"))
-    assert LeRobotDataset("kitbench/test", root=a).num_episodes == len(episodes_a)  # stock lerobot loads it
+    same_content(a, b)
 
 
 @pytest.fixture(scope="module")
@@ -91,6 +82,29 @@ def test_kill_9_loses_at_most_the_episode_in_flight(tmp_path, reference):
     assert f"attempted {24 - kept}," in done.stdout  # nothing that was journaled is recorded again
     assert not journal_root(out).exists()
     _assert_same_dataset(out, reference)
+
+
+def test_kill_9_while_a_data_file_is_open_then_resume_gives_the_uninterrupted_recording(tmp_path, reference):
+    """The first report: `kill -9` once LeRobot had written an episode index beside a data file it still had open
+    (more than ten episodes in the session), then `--resume`, ended in pyarrow's 'Parquet magic bytes not found'."""
+    out = tmp_path / "ds"
+    proc = subprocess.Popen(
+        _cli(out, "--episodes", "24", "--commit-interval", "600"),
+        env=ENV,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    _wait_for_journal(out, 14, proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not out.exists() and list((tmp_path / "ds.session" / "meta" / "episodes").rglob("*.parquet"))
+    done = subprocess.run(
+        _cli(out, "--episodes", "24", "--resume"), env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    _assert_same_dataset(out, reference)
+    assert not (tmp_path / "ds.session").exists() and not journal_root(out).exists()
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])

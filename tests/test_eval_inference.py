@@ -224,7 +224,9 @@ def test_a_bad_policy_option_is_refused_before_any_episode_runs(checkpoints, tmp
 def test_policy_options_need_a_policy_with_settings(tmp_path):
     suite = adhoc_suite("LiftPegUpright-v1", 2, 0)
     config = EvalConfig.of(suite, "expert", tmp_path / "r", policy_options=(("n_action_steps", 1),))
-    with pytest.raises(KitbenchError, match="need a lerobot:<checkpoint> policy; 'expert' has no settings"):
+    with pytest.raises(
+        KitbenchError, match="need a lerobot:<checkpoint> or teleop:<device> policy; 'expert' has no settings"
+    ):
         run_eval(config, progress=False)
     assert not (tmp_path / "r").exists()
 

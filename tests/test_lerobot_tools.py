@@ -181,7 +181,8 @@ def test_a_recording_made_before_settings_rode_in_its_features_still_reads(recor
     info = json.loads(info_file.read_text())
     info["features"][CARRIER].pop("info")
     info_file.write_text(json.dumps(info, indent=4))
-    assert RecordingInfo.read(old) == RecordingInfo.read(recordings["lpu"])
+    RecordingInfo.read(old).write(old)  # its settings file, with the digest of its features, as kitbench wrote it then
+    assert RecordingInfo.read(old).identity() == RecordingInfo.read(recordings["lpu"]).identity()
     assert _facts(old) == _facts(recordings["lpu"])
     # through a LeRobot tool it is a LeRobot dataset only: one line, nothing written
     edited = tmp_path / "edited"

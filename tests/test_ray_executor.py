@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kitbench import faults
 from kitbench.engine import ExecutorConfig, RolloutEngine, make_executor
 from kitbench.engine.ray_executor import RayExecutor
 from kitbench.errors import KitbenchError
@@ -22,6 +23,7 @@ from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import load_suite
 from kitbench.recording.recorder import RecordConfig, record
+from tests.datasets_equal import no_leftovers, same_content
 from tests.engine_work import DiesOnceWork, SleepWork
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,25 +61,6 @@ def _same_dataset(a: Path, b: Path) -> None:
     assert json.loads(fa.pop(stats)) == json.loads(fb.pop(stats))
     different = [name for name in fa if fa[name] != fb[name]]
     assert not different, different
-
-
-def _same_content(a: Path, b: Path) -> None:
-    """The same frames, episode metadata and MCAP logs, however the parquet files are split (each commit of a
-    resumed recording starts new ones)."""
-    import pandas as pd
-
-    def frames(root: Path):
-        return pd.concat([pd.read_parquet(p) for p in sorted((root / "data").rglob("*.parquet"))], ignore_index=True)
-
-    fa, fb = frames(a), frames(b)
-    assert list(fa.columns) == list(fb.columns) and len(fa) == len(fb)
-    for column in fa.columns:
-        np.testing.assert_array_equal(np.stack(fa[column].to_numpy()), np.stack(fb[column].to_numpy()), column)
-    for name in ("meta/kitbench_episodes.jsonl", "meta/kitbench_recording.json"):
-        assert (a / name).read_bytes() == (b / name).read_bytes(), name
-    logs = sorted(p.name for p in (a / "mcap").iterdir())
-    assert logs == sorted(p.name for p in (b / "mcap").iterdir())
-    assert all((a / "mcap" / n).read_bytes() == (b / "mcap" / n).read_bytes() for n in logs)
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +121,7 @@ def test_sharded_recording_on_ray_writes_the_same_dataset_as_one_local_writer(cl
         shard_episodes=2,
     )
     assert record(config, progress=False).stored == EPISODES
-    _same_content(local_dataset, out)
+    same_content(local_dataset, out)
 
 
 @pytest.mark.parametrize("shard_episodes", [0, 1])
@@ -253,7 +236,29 @@ def test_resume_after_the_driver_is_killed_continues_from_the_last_committed_epi
     _, stderr = resumed.communicate(timeout=300)
     assert resumed.returncode == 0, stderr[-3000:]
     assert _seeds(out) == list(range(EPISODES))
-    _same_content(local_dataset, out)
+    same_content(local_dataset, out)
+
+
+@pytest.mark.parametrize(
+    ("extra", "fault"),
+    [((), "writer.saved:4"), (("--shard-episodes", "2"), "shards.merged:1")],
+    ids=["one writer, a data file open", "sharded, the shards merged but not in place"],
+)
+def test_a_ray_recording_whose_driver_is_killed_at_a_fault_point_resumes_into_the_local_one(
+    cluster, local_dataset, tmp_path, extra, fault
+):
+    out = tmp_path / "lpu"
+    env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1", faults.VAR: fault}
+    env.pop(faults.OWNER_VAR, None)
+    killed = subprocess.run(
+        _record_command(out, cluster.address, *extra), cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
+    resumed = _start(_record_command(out, cluster.address, "--resume", *extra))
+    _, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0 and "Traceback" not in stderr, stderr[-3000:]
+    same_content(local_dataset, out)
+    no_leftovers(out)
 
 
 def _actor_pids() -> list[int]:

@@ -14,6 +14,7 @@ import pytest
 
 import kitbench
 from kitbench.recording.recorder import RecordConfig, load_recipe, record
+from tests.datasets_equal import older_recording
 from tests.processes import kill_once_committed
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -220,7 +221,7 @@ def _as_recorded_by_an_older_version(dataset: Path, out: Path) -> Path:
     shutil.copytree(dataset, out)
     saved = json.loads((out / RECORDING_FILE).read_text())
     assert saved["kitbench_version"] == kitbench.__version__
-    (out / RECORDING_FILE).write_text(json.dumps({**saved, "kitbench_version": "0.0.1"}))
+    older_recording(out, kitbench_version="0.0.1")
     return out
 
 

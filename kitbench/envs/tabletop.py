@@ -37,7 +37,7 @@ from kitbench.errors import KitbenchError, check_choice
 from kitbench.perturbations import Perturbations
 from kitbench.robots import ROBOTS, Robot, RobotSpec
 from kitbench.robots.robot import GROUND_FREE_BIT
-from kitbench.sim.cameras import Camera, CameraSpec
+from kitbench.sim.cameras import Camera, CameraSpec, check_sensor_configs, sized
 from kitbench.sim.scene import SimConfig, add_table_and_ground, create_scene
 
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -109,9 +109,12 @@ class TabletopEnv(gym.Env, abc.ABC):
         sim_config: SimConfig | None = None,
         perturbations: Mapping[str, float] | None = None,
         pointcloud_range: float = DEFAULT_POINTCLOUD_RANGE,
+        sensor_configs: Mapping[str, Any] | None = None,
     ):
         """`pointcloud_range`: in obs_mode pointcloud, the depth (m, along each camera's viewing axis) beyond which
-        a point is dropped from the cloud (its w set to 0)."""
+        a point is dropped from the cloud (its w set to 0). `sensor_configs`: the observation cameras' image size,
+        as ManiSkill takes it: `{"width": 64, "height": 64}` for every camera, or per camera
+        `{"base_camera": {"width": 64, "height": 64}}` (each camera keeps its field of view)."""
         robot_uids = robot_uids or self.supported_robots[0]
         check_choice("obs_mode", obs_mode, OBS_MODES)
         check_choice("control_mode", control_mode, CONTROL_MODES)
@@ -128,6 +131,8 @@ class TabletopEnv(gym.Env, abc.ABC):
         ):
             raise KitbenchError(f"pointcloud_range must be a positive number of metres, got {pointcloud_range!r}")
         self.pointcloud_range = float(pointcloud_range)
+        self._robot_spec = ROBOTS[robot_uids]
+        self.sensor_configs = check_sensor_configs(sensor_configs, [s.name for s in self._camera_specs()])
         self._textures = camera_textures(obs_mode)
         self.obs_mode = obs_mode
         self.control_mode = control_mode
@@ -141,7 +146,6 @@ class TabletopEnv(gym.Env, abc.ABC):
         # The scene and robot exist from the first reset (below) until close().
         self.scene: sapien.Scene
         self.robot: Robot
-        self._robot_spec = ROBOTS[robot_uids]
         self.controller = make_controller(
             control_mode,
             self._arm_limits(),
@@ -527,7 +531,11 @@ class TabletopEnv(gym.Env, abc.ABC):
         return names
 
     def camera_specs(self) -> tuple[CameraSpec, ...]:
-        """Every camera an image observation has (the task's, then the robot's), whatever this env's obs mode."""
+        """Every camera an image observation has (the task's, then the robot's), whatever this env's obs mode, at
+        the size `sensor_configs` asks."""
+        return tuple(sized(spec, self.sensor_configs) for spec in self._camera_specs())
+
+    def _camera_specs(self) -> tuple[CameraSpec, ...]:
         task = self._sensor_cameras() if self._robot_spec.task_cameras else []
         return (*task, *self._robot_spec.cameras)
 

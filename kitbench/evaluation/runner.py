@@ -18,6 +18,7 @@ from typing import Any
 
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.engine.executor import ClusterLost
+from kitbench.env_settings import canonical_size
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.config import COMMAND_LINE, EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
@@ -72,6 +73,15 @@ def fit_suite_to_policy(suite: Suite, policy, origins: dict[str, str]) -> Suite:
             )
         if suite.obs_mode == "state":
             changes["obs_mode"] = obs
+    trained = needs.get("camera_size")
+    if trained is not None and canonical_size(trained) != suite.camera_size:
+        # images are never resized: a policy sees the cameras at the size it was trained at, or is not scored
+        if suite.camera_size is not None:
+            raise KitbenchError(
+                f"policy {policy.name} was trained on {trained} camera images but this evaluation renders "
+                f"{suite.camera_size}; evaluate it with --camera-size {trained}"
+            )
+        changes["camera_size"] = canonical_size(trained)
     return replace(suite, **changes) if changes else suite
 
 
@@ -247,6 +257,9 @@ def _check_save_dataset(config: EvalConfig) -> None:
         raise KitbenchError(
             f"--save-dataset records episodes one at a time; drop --batch-size {config.policy.batch_size}"
         )
+    from kitbench.recording.dataset import recover
+
+    recover(target)  # a save a kill interrupted: its last commit back in place, an unfinished session gone
     if target.exists() and not config.output.overwrite:
         raise KitbenchError(f"dataset folder {target} exists; pass --overwrite to replace it")
     if target.exists() and not is_recording(target):
@@ -290,8 +303,9 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
         fps=fps,
         made_by=shlex.join(["kitbench", "eval", *flags, "--save-dataset", "<folder>"]),
     )
-    session = RecordingSession(target, info, features, robot, commit_interval=float("inf"), durable=False)
-    session.start(overwrite=target.exists())
+    # an existing dataset (--overwrite) is replaced by the commit, in one rename: a kill before leaves it whole
+    session = RecordingSession(target, info, features, robot, commit_interval=float("inf"), durable=False, replace=True)
+    session.start()
     try:
         for episode in episodes:
             session.store(episode)

@@ -53,3 +53,28 @@ def describe(values) -> dict | None:
         "p90": float(q[4]),
         "max": float(v.max()),
     }
+
+
+def prediction_interval(
+    successes: list[int], episodes: list[int], new_episodes: int, level: float = 0.95
+) -> tuple[float, float]:
+    """Where one new run of `new_episodes` episodes (a new training seed, scored the same way) is expected to land,
+    given runs that scored `successes[i]` of `episodes[i]`: their pooled rate, with the new run's own sampling
+    error, the pooled rate's, and the spread between runs beyond their sampling error (the method of moments),
+    under Student's t with k - 1 degrees of freedom for k runs (the spread is estimated from them; with one run,
+    the normal quantile and no spread). Clipped to [0, 1]."""
+    from scipy import stats  # type: ignore[import-untyped]
+
+    k = len(successes)
+    p = sum(successes) / sum(episodes)
+    rates = [s / n for s, n in zip(successes, episodes, strict=True)]
+    binomial = p * (1 - p)
+    between = 0.0
+    if k > 1:
+        sample = float(np.var(rates, ddof=1))
+        between = max(0.0, sample - float(np.mean([binomial / n for n in episodes])))
+    run = between + binomial / new_episodes  # the new run's rate about the true mean
+    mean = (between + binomial / (sum(episodes) / k)) / k  # the pooled rate's own error
+    quantile = stats.t.ppf(0.5 + level / 2, k - 1) if k > 1 else stats.norm.ppf(0.5 + level / 2)
+    half = float(quantile) * math.sqrt(run + mean)
+    return max(0.0, p - half), min(1.0, p + half)

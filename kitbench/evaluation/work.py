@@ -58,6 +58,7 @@ def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, 
         reward_mode=suite.reward_mode,
         render_mode="rgb_array" if render else None,
         robot_uids=suite.robot,
+        sensor_configs=suite.sensor_configs,
         perturbations=None if perturbation is None else dict([perturbation]),
     )
 

@@ -180,6 +180,10 @@ class LeRobotPolicy:
             needs["control_mode"] = self.control_mode
         if self.robot is not None:
             needs["robot"] = self.robot
+        sizes = {(f.shape[-1], f.shape[-2]) for f in self.config.input_features.values() if f.type.name == "VISUAL"}
+        if len(sizes) == 1:  # the cameras' size it was trained at
+            width, height = sizes.pop()
+            needs["camera_size"] = f"{width}x{height}"
         return needs
 
     def check(self, env) -> None:

@@ -12,7 +12,7 @@ from typing import Any
 from kitbench.errors import KitbenchError
 
 # The modules that register kitbench's own sources, imported on the first `make_policy`.
-BUILTIN_MODULES = ("expert", "baselines", "replay", "lerobot_policy")
+BUILTIN_MODULES = ("expert", "baselines", "replay", "lerobot_policy", "teleop")
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,13 @@ class ReplayPolicy:
     phase = None
 
     def __init__(self, root: str, episode: int | None = None):
+        from kitbench.integrity import check_dataset
+
         self.root = Path(root)
         files = sorted((self.root / "data").rglob("*.parquet"))
         if not files:
             raise KitbenchError(f"no LeRobot dataset at {root} (no data/*/*.parquet)")
+        check_dataset(self.root)
         columns = ["episode_index", "frame_index", "action", "episode_seed"]
         frames = read_columns(files, columns).sort_values(["episode_index", "frame_index"])
         self._actions = {

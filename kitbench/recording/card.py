@@ -17,6 +17,7 @@ from pathlib import Path
 from kitbench.envs.features import CAMERA_PARAMS, ENVIRONMENT_STATE, POINTCLOUD_PREFIX, SENSOR_PARAM, STATE, modality
 from kitbench.envs.modalities import texture_of
 from kitbench.metadata import EPISODES_FILE, IDENTITY, RECORDING_FILE, RecordingInfo, read_episodes
+from kitbench.teleop.checks import is_teleop
 
 CARD = "README.md"
 # What each kind of feature holds, beyond its dtype and shape (`kitbench.envs.features`).
@@ -181,6 +182,9 @@ def card_text(root: Path) -> str:
         f"| `{n}` | {features[n]['dtype']} | {tuple(features[n]['shape'])} | {_describe(n, robot)} |" for n in stored
     ]
     made = [f"policy `{recording.policy}`"]
+    if is_teleop(recording.policy):
+        device = recording.policy.partition(":")[2]
+        made = [f"a person at the controls, with LeRobot's `{device}` teleoperator (policy `{recording.policy}`)"]
     if recording.source:
         made.append(f"converted from `{recording.source}` (its executed actions replayed from each seed)")
     if recording.label:

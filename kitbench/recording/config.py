@@ -18,10 +18,12 @@ from kitbench.envs.modes import camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
 from kitbench.metadata import RECORDING_FILE, RecordingInfo
+from kitbench.policies.lerobot_policy import parse_option
 from kitbench.recording.features import RGB_STORAGES
-from kitbench.recording.layout import RETIRED_SUFFIX, SESSION_SUFFIX, SHARDS_DIR, beside, journal_root
+from kitbench.recording.layout import RETIRED_SUFFIX, SHARDS_DIR, beside, journal_root, last_commit
 from kitbench.registration import task_entry
 from kitbench.rollout import SettleSettings
+from kitbench.teleop.checks import check_record_settings
 
 LABELS = ("expert",)
 
@@ -61,9 +63,14 @@ def check_repo_id(repo_id: object) -> None:
 
 @dataclass
 class PolicySettings:
-    # Who acts: expert, random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint> (its rollouts; with
-    # --only-success its successes).
+    # Who acts: expert, random, zero, replay:<dataset>[:episode], lerobot:<checkpoint> (its rollouts; with
+    # --only-success its successes) or teleop:<device> (a person with one of LeRobot's teleoperators).
     policy: str = setting("expert")
+    # Set a lerobot checkpoint's config field, or a teleoperator's (port=/dev/ttyACM0, id=my_leader), for this run
+    # (repeatable).
+    policy_options: tuple[tuple[str, object], ...] = setting(
+        (), flag="--policy-option", repeat=True, parse=parse_option, metavar="KEY=VALUE"
+    )
     # expert: store as each frame's action what the task's expert commands from the state the policy reached
     # (DAgger); executed_action keeps the policy's own.
     label: str | None = setting(None, check=one_of(LABELS, optional=True))
@@ -177,6 +184,7 @@ class RecordConfig:
             reward_mode=self.env.reward_mode,
             robot=self.env.robot,
             pointcloud_points=self.env.pointcloud_points if self.env.obs_mode == "pointcloud" else None,
+            camera_size=self.env.camera_size if self.env.obs_mode != "state" else None,
             rgb_storage=self.output.rgb_storage,
             label=self.policy.label,
             source=None if self.source is None else str(self.source),
@@ -224,6 +232,10 @@ def validate(config: RecordConfig) -> None:
     if out.resume and out.overwrite:
         raise KitbenchError("--resume and --overwrite exclude each other")
     config.executor.validate()
+    executor = config.executor
+    check_record_settings(
+        config.policy.policy, executor.workers, executor.executor, executor.shard_episodes, demo.action_noise
+    )
     if config.executor.shard_episodes and demo.only_success:
         raise KitbenchError(
             "shard_episodes and only_success exclude each other: which seeds a shard keeps would depend on the "
@@ -240,7 +252,7 @@ def validate(config: RecordConfig) -> None:
     try:
         from kitbench.policies.registry import make_policy
 
-        policy = make_policy(config.policy.policy)
+        policy = make_policy(config.policy.policy, options=dict(config.policy.policy_options))
         if config.policy.policy == "expert" or config.policy.label == "expert":
             from kitbench.policies.expert import check_has_expert
 
@@ -316,12 +328,13 @@ def _saved_settings(out: Path) -> list[RecordingInfo]:
     """The settings each part of an interrupted recording at `out` was made with."""
     from kitbench.recording.journal import EpisodeJournal
 
-    folder = out
-    if not out.exists():  # killed inside a commit: the recorder restores the session, else the retired folder
-        session, retired = beside(out, SESSION_SUFFIX), beside(out, RETIRED_SUFFIX)
-        folder = session if session.is_dir() else retired
-    saved = [info for info in (RecordingInfo.read(folder), EpisodeJournal(out).settings()) if info is not None]
-    return saved
+    folder = last_commit(out)  # what the recorder will restore; an unfinished session is never read
+    if folder is not None:
+        from kitbench.integrity import check_dataset
+
+        check_dataset(folder)
+    committed = RecordingInfo.read(folder) if folder is not None else None
+    return [info for info in (committed, EpisodeJournal(out).settings()) if info is not None]
 
 
 def _check_output(config: RecordConfig) -> None:
@@ -359,7 +372,9 @@ def _check_output(config: RecordConfig) -> None:
             raise KitbenchError(f"cannot resume {out} with different settings ({detail})")
 
 
-def make_recording_env(config: RecordConfig):
+def make_recording_env(config: RecordConfig, render_mode: str | None = None):
+    """The env `config` records in; `render_mode` "rgb_array" for a person's live view of the scene (visual shapes
+    only: the same physics, the same data)."""
     from kitbench.registration import make_env
 
     env = config.env
@@ -369,6 +384,8 @@ def make_recording_env(config: RecordConfig):
         control_mode=env.control_mode,
         reward_mode=env.reward_mode,
         robot_uids=env.robot,
+        sensor_configs=env.sensor_configs,
+        render_mode=render_mode,
     )
 
 

@@ -148,6 +148,11 @@ def convert_config(source_root: Path, out: Path, **settings):
     """The `RecordConfig` of converting the recording at `source_root` into `out`: the source's task, robot, seeds,
     reward and settling, with `settings` (obs_mode, control_mode, workers, ...; None: the source's or the
     default) on top."""
+    from kitbench.integrity import check_dataset
+
+    if not Path(source_root).is_dir():
+        raise KitbenchError(f"{source_root} is not a kitbench recording (no such folder)")
+    check_dataset(source_root)
     source = SourceRecording(source_root)
     info = source.info
     if not source.seeds:
@@ -160,6 +165,7 @@ def convert_config(source_root: Path, out: Path, **settings):
         "settle_steps": info.settle_steps,
         "repo_id": info.repo_id,
         "rgb_storage": info.rgb_storage,
+        "camera_size": info.camera_size,
     }
     fixed = {
         "task": info.task,

@@ -24,9 +24,11 @@ from typing import Any
 
 import numpy as np
 
+from kitbench import faults
 from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episode_file, write_episodes
 from kitbench.recording.card import write_card
-from kitbench.recording.layout import RETIRED_SUFFIX, SESSION_SUFFIX
+from kitbench.recording.durable import fsync_dir, fsync_new
+from kitbench.recording.layout import RETIRED_SUFFIX, SESSION_SUFFIX, beside, last_commit
 
 __all__ = ["DatasetWriter", "recover"]
 
@@ -50,18 +52,12 @@ def _depth_encoder():
 def recover(root: Path) -> None:
     """Bring a folder left by a killed run back to its last commit."""
     root = Path(root)
-    session = root.with_name(root.name + SESSION_SUFFIX)
-    retired = root.with_name(root.name + RETIRED_SUFFIX)
-    if not root.exists() and retired.exists():
-        # killed between the two renames of a commit: the session had finalized, so it is the newest commit
-        if session.exists():
-            os.replace(session, root)
-        else:
-            os.replace(retired, root)
-    if session.exists():
-        shutil.rmtree(session)
-    if retired.exists():
-        shutil.rmtree(retired)
+    committed = last_commit(root)
+    if committed is not None and committed != root:
+        os.replace(committed, root)
+    for leftover in (beside(root, SESSION_SUFFIX), beside(root, RETIRED_SUFFIX)):
+        if leftover.exists():
+            shutil.rmtree(leftover)
 
 
 def remove_recording(root: Path) -> None:
@@ -126,8 +122,10 @@ def quiet_video_logs() -> None:
 class DatasetWriter:
     """Adds whole episodes to a LeRobot dataset under `root`, committing them in sessions."""
 
-    def __init__(self, root: Path, info: RecordingInfo, features: dict, robot_type: str):
+    def __init__(self, root: Path, info: RecordingInfo, features: dict, robot_type: str, replace: bool = False):
+        """`replace`: the first commit replaces the dataset at `root` whole (until then it stays as it was)."""
         self.root = Path(root)
+        self.replace = replace
         self.info = info
         self.repo_id = info.repo_id or f"kitbench/{info.task}"
         self.fps = info.fps
@@ -150,7 +148,7 @@ class DatasetWriter:
         session = self.session_root
         if session.exists():
             shutil.rmtree(session)
-        if self.root.exists():
+        if self.root.exists() and not self.replace:
             _clone(self.root, session)
             self._session = LeRobotDataset.resume(
                 self.repo_id, root=session, rgb_encoder=_video_encoder(), depth_encoder=_depth_encoder()
@@ -175,11 +173,15 @@ class DatasetWriter:
         ds = self._session
         index = ds.meta.total_episodes
         seed = np.array([record.seed], dtype=np.int64)
-        for frame in record.frames:
+        half = len(record.frames) // 2
+        for i, frame in enumerate(record.frames):
+            if i == half:
+                faults.point("writer.frames")
             ds.add_frame(
                 {**{k: v for k, v in frame.items() if k in self.features}, "episode_seed": seed, "task": record.task}
             )
         ds.save_episode()
+        faults.point("writer.saved")
         self._pending.append(
             EpisodeInfo(
                 index, record.seed, record.success, record.length, record.first_success, record.task, record.config
@@ -196,14 +198,22 @@ class DatasetWriter:
             return
         self._session.finalize()
         self._session = None
+        self.replace = False  # later sessions extend what this commit publishes
+        faults.point("commit.finalized")
         session = self.session_root
         write_episodes(session, read_episode_file(session) + self._pending)
         self.info.write(session)
+        faults.point("commit.metadata")
         write_card(session)
+        fsync_new(session)  # durable before it is published: the journal forgets these episodes next
+        faults.point("commit.card")
         retired = self.root.with_name(self.root.name + RETIRED_SUFFIX)
         if self.root.exists():
             os.replace(self.root, retired)
+            faults.point("commit.retired")
         os.replace(session, self.root)
+        fsync_dir(self.root.parent)
+        faults.point("commit.swapped")
         if retired.exists():
             shutil.rmtree(retired)
         self._pending = []

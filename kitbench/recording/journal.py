@@ -17,12 +17,17 @@ import io
 import json
 import os
 import shutil
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC  # an MCAP file's first and last 8 bytes
 
+from kitbench import faults
+from kitbench.errors import KitbenchError
 from kitbench.metadata import RecordingInfo
+from kitbench.recording.durable import fsync_dir, write_durably
 from kitbench.recording.layout import SHARDS_DIR, journal_root
 
 __all__ = ["SETTINGS_FILE", "SHARDS_DIR", "EpisodeJournal", "journal_root"]
@@ -30,23 +35,6 @@ from kitbench.recording.rollout import EpisodeRecord
 
 SETTINGS_FILE = "recording.json"
 _META = "__meta__"
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_durably(path: Path, data: bytes) -> None:
-    partial = path.with_name(f".{path.name}.partial")
-    with open(partial, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(partial, path)
 
 
 class EpisodeJournal:
@@ -61,14 +49,24 @@ class EpisodeJournal:
     def settings(self) -> RecordingInfo | None:
         """The settings of the recording the journal belongs to (None when there is no journal)."""
         path = self.root / SETTINGS_FILE
-        return RecordingInfo.from_json(json.loads(path.read_text())) if path.is_file() else None
+        if not path.is_file():
+            return None
+        try:
+            data = json.loads(path.read_text())
+            if not isinstance(data, dict):
+                raise ValueError("not a JSON object")
+            return RecordingInfo.from_json(data)
+        except (OSError, ValueError, TypeError, KitbenchError) as exc:
+            raise KitbenchError(
+                f"{path} is unreadable ({exc}); delete {self.root} to record its unpublished episodes again"
+            ) from None
 
     def start(self, info: RecordingInfo) -> None:
         """Create the journal for a recording with settings `info` (kept if it exists: a resumed recording)."""
         self.root.mkdir(parents=True, exist_ok=True)
         if not (self.root / SETTINGS_FILE).is_file():
-            _write_durably(self.root / SETTINGS_FILE, (json.dumps(info.to_json(), indent=2) + "\n").encode())
-            _fsync_dir(self.root.parent)
+            write_durably(self.root / SETTINGS_FILE, (json.dumps(info.to_json(), indent=2) + "\n").encode())
+            fsync_dir(self.root.parent)
 
     def _path(self, seed: int, suffix: str) -> Path:
         return self.root / f"seed-{seed:010d}{suffix}"
@@ -92,14 +90,51 @@ class EpisodeJournal:
         log = None
         if mcap is not None:
             log = self._path(episode.seed, ".mcap")
-            _write_durably(log, mcap)  # before the episode: an episode file under its name has its log
-        _write_durably(self._path(episode.seed, ".npz"), buffer.getvalue())
-        _fsync_dir(self.root)
+            write_durably(log, mcap)  # before the episode: an episode file under its name has its log
+        write_durably(self._path(episode.seed, ".npz"), buffer.getvalue())
+        fsync_dir(self.root)
         return log
 
     def seeds(self) -> list[int]:
         """Seeds of the journaled episodes, in order (only whole files count: a partial one was in flight)."""
         return sorted(int(p.stem[len("seed-") :]) for p in self.root.glob("seed-*.npz"))
+
+    def check(self) -> tuple[list[int], str | None]:
+        """The journaled seeds that read back whole, in order, up to the first that does not (damaged on disk:
+        a kill leaves no such file). That one and those after it are deleted, so that they are recorded again
+        in seed order; the second value names it and why (None when every entry is whole)."""
+        seeds = self.seeds()
+        for i, seed in enumerate(seeds):
+            problem = self._damage(seed)
+            if problem is not None:
+                self.discard(seeds[i:])
+                again = f"seed {seed}" if i == len(seeds) - 1 else f"seeds {seed}-{seeds[-1]}"
+                return seeds[:i], f"journal entry {problem}: {again} recorded again"
+        return seeds, None
+
+    def _damage(self, seed: int) -> str | None:
+        """What is wrong with a journaled episode's files, or None: the archive's checksums and its metadata,
+        and its MCAP log's closing magic bytes."""
+        path = self._path(seed, ".npz")
+        try:
+            with zipfile.ZipFile(path) as archive:
+                bad = archive.testzip()
+                if bad is not None:
+                    return f"{path} is damaged ({bad} fails its checksum)"
+            with np.load(path) as data:
+                meta = json.loads(str(data[_META]))
+                if meta.get("seed") != seed or not all(k in data for k in meta["keys"]):
+                    return f"{path} does not hold the episode its name says"
+        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+            return f"{path} is unreadable ({exc})"
+        log = self._path(seed, ".mcap")
+        if log.exists():
+            with open(log, "rb") as f:
+                f.seek(0, os.SEEK_END)
+                f.seek(max(f.tell() - len(MCAP_MAGIC), 0))
+                if f.read() != MCAP_MAGIC:
+                    return f"{log} is truncated (no closing MCAP magic)"
+        return None
 
     def load(self, seed: int) -> tuple[EpisodeRecord, Path | None]:
         """A journaled episode as the recorder produced it, and its MCAP log if it has one."""
@@ -125,6 +160,7 @@ class EpisodeJournal:
         for seed in seeds:
             for suffix in (".npz", ".mcap"):
                 self._path(seed, suffix).unlink(missing_ok=True)
+            faults.point("journal.discard")
 
     def remove(self) -> None:
         """Delete the whole journal (the recording is complete and committed, or being replaced)."""

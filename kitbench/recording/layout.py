@@ -21,3 +21,17 @@ def beside(out: Path, suffix: str) -> Path:
 def journal_root(out: Path) -> Path:
     """The journal folder of the dataset folder `out`."""
     return beside(out, JOURNAL_SUFFIX)
+
+
+def last_commit(root: Path) -> Path | None:
+    """The folder holding the last commit of the dataset at `root`, as `recover` will leave it: `root` itself, or,
+    after a kill between a commit's two renames, its session (finalized before the first rename) or the folder set
+    aside. None when nothing was ever committed: a session beside no dataset is one a kill left unfinished (its
+    data file may have no footer yet) and is never read."""
+    root = Path(root)
+    if root.exists():
+        return root
+    session, retired = beside(root, SESSION_SUFFIX), beside(root, RETIRED_SUFFIX)
+    if retired.is_dir():
+        return session if session.is_dir() else retired
+    return None

@@ -17,11 +17,14 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench import faults
 from kitbench.config.declare import setting
 from kitbench.errors import KitbenchError
+from kitbench.integrity import check_dataset
 from kitbench.metadata import CARRIER, EpisodeInfo, RecordingInfo, lerobot_info, read_episodes, write_episodes
 from kitbench.recording.card import write_card
 from kitbench.recording.config import check_repo_id
+from kitbench.recording.dataset import recover
 from kitbench.recording.layout import SESSION_SUFFIX, beside, journal_root
 from kitbench.recording.session import MCAP_DIR
 
@@ -61,6 +64,7 @@ def _read_shard(root: Path, finished: bool) -> Shard:
         raise KitbenchError(f"shard {root} does not exist (give the folders of finished kitbench recordings)")
     if finished and (journal_root(root).is_dir() or beside(root, SESSION_SUFFIX).exists()):
         raise KitbenchError(f"shard {root} is an unfinished recording; finish it with kitbench record --resume")
+    check_dataset(root)
     info = RecordingInfo.require(root, f"shard {root}")
     episodes = read_episodes(root)
     if not episodes:
@@ -159,6 +163,7 @@ def merge(
     if repo_id is not None:
         check_repo_id(repo_id)
     out = Path(out)
+    recover(out)  # a merge a kill interrupted between its two renames: the dataset it was replacing back in place
     shards = sorted((_read_shard(r, finished) for r in shard_roots), key=lambda s: min(s.seeds))
     _check_shards(shards)
     _check_out(out, shards, overwrite)
@@ -176,6 +181,7 @@ def merge(
             roots=[s.root for s in shards],
             aggr_root=staging,
         )
+        faults.point("merge.aggregated")
         episodes, offset = [], 0
         without_logs: dict[Path, int] = {}
         for shard in shards:
@@ -196,6 +202,7 @@ def merge(
         retired = out.with_name(out.name + ".retired")
         if out.exists():
             os.replace(out, retired)  # the old dataset stays whole until the new one is in place
+            faults.point("merge.retired")
         os.replace(staging, out)
         shutil.rmtree(retired, ignore_errors=True)
     except BaseException:

@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from contextlib import ExitStack
 from pathlib import Path
 
+from kitbench import faults
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.engine.executor import ClusterLost
 from kitbench.errors import KitbenchError
@@ -23,6 +24,9 @@ from kitbench.recording.session import RecordingSession, dataset_state
 from kitbench.recording.stops import Stopped, StopSignals
 from kitbench.recording.summary import Summary, attempt_limit, folder_size
 from kitbench.recording.work import RecordWork
+from kitbench.rollout import Control
+
+STOPPED = "stopped as asked (escape): the episodes stored are committed; continue with --resume"
 
 
 def _say(message: str) -> None:
@@ -60,7 +64,7 @@ def record_episodes(config: RecordConfig, progress: bool = True, signals: bool =
     """Record on one writer (`config` already validated). Workers start before anything is written or replaced:
     a run whose workers cannot start (a Ray cluster short of CPUs) leaves everything as it was."""
     started = time.monotonic()  # the speed printed counts the workers' start-up, as a user waits for it
-    committed, journaled = dataset_state(config.out, config.output.overwrite)
+    committed, journaled = dataset_state(config.out, config.output.overwrite, _say)
     with ExitStack() as workers:
         engine = None
         to_record = config.episodes - len(committed) - len(journaled)
@@ -69,6 +73,7 @@ def record_episodes(config: RecordConfig, progress: bool = True, signals: bool =
             engine = workers.enter_context(RolloutEngine(executor, RecordWork(config)))
         session = open_session(config)
         session.start(overwrite=config.output.overwrite)
+        faults.point("record.started")
         summary = Recording(config, session, committed, progress).run(engine, signals)
     summary.seconds = time.monotonic() - started
     summary.size_bytes = folder_size(config.out)
@@ -132,6 +137,7 @@ class Recording:
                 self.session.republish(seed)
                 replayed.append(seed)
                 self.summary.stored += 1
+            faults.point("resume.republish")
         if replayed:
             with stops.storing():
                 self.session.commit()
@@ -155,6 +161,9 @@ class Recording:
             return min(self.config.episodes - summary.stored, self.limit - summary.attempted)
 
         for _, (episode, mcap) in engine.results(self._seeds(replayed), needed):
+            if episode.control is Control.STOP and not episode.length:  # stopped before the episode began
+                _say(STOPPED)
+                break
             summary.attempted += 1
             summary.successes += int(episode.success)
             if self._keep(episode):
@@ -170,6 +179,9 @@ class Recording:
             if bar is not None:
                 bar.set_postfix(success=f"{summary.successes / summary.attempted:.0%}", tried=summary.attempted)
             if summary.should_stop(self.config.episodes, self.limit):
+                break
+            if episode.control is Control.STOP:  # a person's escape: stored as any episode, then the end
+                _say(STOPPED)
                 break
 
     def _keep(self, episode: EpisodeRecord) -> bool:

@@ -30,7 +30,7 @@ from kitbench.policies.base import label_of, phase_of, tcp_target_of
 from kitbench.recording.mcap_log import EpisodeMcap
 from kitbench.recording.noise import ActionNoise
 from kitbench.recording.scene_geometry import Body, optical_frame, scene_bodies, scene_update
-from kitbench.rollout import Episode, Hook, OneEpisode, SettleAfterSuccess, Step, clipped, run
+from kitbench.rollout import Control, Episode, Hook, OneEpisode, SettleAfterSuccess, Step, clipped, run
 
 
 @dataclass
@@ -43,6 +43,7 @@ class EpisodeRecord:
     config: dict = field(default_factory=dict)
     physics_error: str | None = None  # the simulation failed at the last step (`info["physics_error"]`)
     rejected: str | None = None  # why the episode is not to be stored although it ran (a conversion that diverged)
+    control: Control | None = None  # a person's request that ended it (teleoperation: re-record, stop)
 
     @property
     def length(self) -> int:
@@ -93,6 +94,7 @@ class Frames(Hook):
         self.record.first_success = episode.first_success
         self.record.success = episode.success
         self.record.physics_error = episode.info.get("physics_error")
+        self.record.control = episode.control
 
 
 class ExpertLabels(Hook):

@@ -12,8 +12,10 @@ journal holds, in seed order, before recording goes on.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
+from kitbench import faults
 from kitbench.metadata import EpisodeInfo, RecordingInfo, read_episodes
 from kitbench.recording.dataset import DatasetWriter, recover, remove_recording
 from kitbench.recording.journal import EpisodeJournal
@@ -22,9 +24,10 @@ from kitbench.recording.rollout import EpisodeRecord
 MCAP_DIR = "mcap"
 
 
-def dataset_state(out: Path, overwrite: bool) -> tuple[list[EpisodeInfo], list[int]]:
+def dataset_state(out: Path, overwrite: bool, say: Callable[[str], None]) -> tuple[list[EpisodeInfo], list[int]]:
     """Before a recording at `out` starts: the episodes its dataset holds and the seeds its journal holds beyond
-    them. A commit a kill interrupted is completed or undone first; with `overwrite`, there is nothing to keep."""
+    them. A commit a kill interrupted is completed or undone first; with `overwrite`, there is nothing to keep.
+    A damaged journal entry (`say` tells which) is recorded again, with those after it."""
     if overwrite:
         return [], []
     recover(out)
@@ -32,7 +35,10 @@ def dataset_state(out: Path, overwrite: bool) -> tuple[list[EpisodeInfo], list[i
     journal = EpisodeJournal(out)
     done = {e.seed for e in committed}
     journal.discard([s for s in journal.seeds() if s in done])  # published just before a kill
-    return committed, journal.seeds()
+    seeds, damage = journal.check()
+    if damage is not None:
+        say(damage)
+    return committed, seeds
 
 
 class RecordingSession:
@@ -46,10 +52,13 @@ class RecordingSession:
         robot: str,
         commit_interval: float,
         durable: bool = True,
+        replace: bool = False,
     ):
+        """`durable`: each episode journaled before it is published (else committed only, once, at the end);
+        `replace`: the first commit replaces a dataset at `out` whole, which stays as it was until then."""
         self.out = Path(out)
         self.info = info
-        self.writer = DatasetWriter(self.out, info, features, robot)
+        self.writer = DatasetWriter(self.out, info, features, robot, replace)
         self.journal = EpisodeJournal(self.out) if durable else None
         self.commit_interval = commit_interval
         self.published: list[int] = []  # seeds in the open session, journaled until it is committed
@@ -71,6 +80,7 @@ class RecordingSession:
             target.parent.mkdir(parents=True, exist_ok=True)
             os.link(log, target)
         self.published.append(episode.seed)
+        faults.point("session.published")
 
     def store(self, episode: EpisodeRecord, mcap: bytes | None = None) -> None:
         """Make `episode` durable, then add it to the open session."""
@@ -80,6 +90,7 @@ class RecordingSession:
             self.publish(episode, None)
             return
         log = self.journal.add(episode, mcap)
+        faults.point("journal.added")
         self.publish(episode, log)
 
     def journaled(self) -> list[int]:
@@ -98,6 +109,7 @@ class RecordingSession:
     def commit(self) -> None:
         """Publish the open session and forget its journaled episodes."""
         self.writer.commit()
+        faults.point("commit.done")
         if self.journal is not None:
             self.journal.discard(self.published)
         self.published.clear()
@@ -109,4 +121,5 @@ class RecordingSession:
     def finish(self) -> None:
         """The recording is complete: its journal goes."""
         if self.journal is not None:
+            faults.point("record.finishing")
             self.journal.remove()

@@ -21,6 +21,7 @@ import io
 import os
 import shutil
 import signal
+import sys
 import tarfile
 import tempfile
 import time
@@ -29,10 +30,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from kitbench import faults
 from kitbench.engine import RolloutEngine, Work, make_executor
 from kitbench.engine.executor import ClusterLost
 from kitbench.errors import KitbenchError
 from kitbench.recording.config import RecordConfig
+from kitbench.recording.durable import fsync_dir, fsync_new
 from kitbench.recording.journal import SHARDS_DIR, EpisodeJournal
 from kitbench.recording.stops import Stopped, StopSignals
 from kitbench.recording.summary import Summary, attempt_limit, folder_size
@@ -107,6 +110,34 @@ def journaled_shards(journal: EpisodeJournal) -> list[Path]:
     return sorted(folder.glob(f"{SHARD_PREFIX}*")) if folder.is_dir() else []
 
 
+def _unpublished(journal: EpisodeJournal, out: Path) -> list[Path]:
+    """The journaled shards not yet in the dataset at `out`, in seed order. A run killed after publishing its
+    merge but before deleting its journal left shards the dataset holds already: they are deleted, not merged
+    twice. A shard damaged on disk (a kill leaves none) is deleted with those after it, which are recorded again."""
+    from kitbench.integrity import Damage, check_dataset
+
+    shards = journaled_shards(journal)
+    last = max((e.seed for e in _episodes(out)), default=-1) if out.exists() else -1
+    kept: list[Path] = []
+    for i, shard in enumerate(shards):
+        if int(shard.name[len(SHARD_PREFIX) :]) <= last:
+            shutil.rmtree(shard)
+            continue
+        try:
+            check_dataset(shard)
+        except Damage as exc:
+            print(
+                f"kitbench record: journaled shard {exc.path}: {exc.problem}: it and the shards after it are "
+                "recorded again",
+                file=sys.stderr,
+            )
+            for later in shards[i:]:
+                shutil.rmtree(later)
+            break
+        kept.append(shard)
+    return kept
+
+
 def _store_shard(journal: EpisodeJournal, result: ShardResult) -> Path:
     """Unpack a shard durably under the journal: whole under its final name, or not there at all."""
     folder = _shard_folder(journal)
@@ -116,16 +147,10 @@ def _store_shard(journal: EpisodeJournal, result: ShardResult) -> Path:
     shutil.rmtree(partial, ignore_errors=True)
     with tarfile.open(fileobj=io.BytesIO(result.data), mode="r") as tar:
         tar.extractall(partial, filter="data")
-    for path in partial.rglob("*"):
-        if path.is_file():
-            with open(path, "rb") as f:
-                os.fsync(f.fileno())
+    faults.point("shards.extracting")
+    fsync_new(partial)
     os.replace(partial, final)
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    fsync_dir(folder)
     return final
 
 
@@ -145,7 +170,7 @@ def record_sharded(config: RecordConfig, progress: bool) -> Summary:
     shard_episodes = config.executor.shard_episodes
     if not config.output.overwrite:
         recover(out)
-        done = ([out] if out.exists() else []) + journaled_shards(journal)
+        done = ([out] if out.exists() else []) + _unpublished(journal, out)
     seeds = [e.seed for root in done for e in _episodes(root)]
     summary = Summary(stored=len(seeds))
     started = time.monotonic()
@@ -202,6 +227,7 @@ def record_sharded(config: RecordConfig, progress: bool) -> Summary:
                         break
             with stops.storing():
                 _publish(done, out)
+        faults.point("shards.swapped")
         journal.remove()
     except ClusterLost as exc:  # finished shards stay in the journal for --resume
         raise KitbenchError(f"{exc}; every shard finished before is kept: continue with --resume") from None
@@ -229,6 +255,7 @@ def _publish(done: list[Path], out: Path) -> None:
     staging = out.with_name(out.name + ".merged")
     shutil.rmtree(staging, ignore_errors=True)
     merge(done, staging, finished=False)  # `out`, when extended, has this recording's journal beside it
+    faults.point("shards.merged")
     retired = out.with_name(out.name + ".retired")
     if out.exists():
         os.replace(out, retired)

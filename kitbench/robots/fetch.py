@@ -19,7 +19,7 @@ from pathlib import Path
 
 from kitbench.robots.registry import register_robot
 from kitbench.robots.spec import Decimation, RobotSpec
-from kitbench.sim.cameras import CameraSpec
+from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec
 
 ARM_JOINTS = (
     "shoulder_pan_joint",
@@ -67,8 +67,8 @@ GROUND_FREE_LINKS = (
     "laser_link",
 )
 # The reference's cameras: fetch_head on the head camera link, fetch_hand behind and above the gripper.
-HEAD_CAMERA = CameraSpec("fetch_head", 128, 128, 2.0, (0.0, 0.0, 0.0), mount="head_camera_link")
-HAND_CAMERA = CameraSpec("fetch_hand", 128, 128, 2.0, (-0.1, 0.0, 0.1), mount="gripper_link")
+HEAD_CAMERA = CameraSpec("fetch_head", *OBSERVATION_SIZE, 2.0, (0.0, 0.0, 0.0), mount="head_camera_link")
+HAND_CAMERA = CameraSpec("fetch_hand", *OBSERVATION_SIZE, 2.0, (-0.1, 0.0, 0.1), mount="gripper_link")
 TABLE_HEIGHT = 0.92  # the table top is z = 0; the base stands on the floor below it
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from kitbench.robots.assets import panda_mujoco_urdf, panda_urdf_path
 from kitbench.robots.registry import register_robot
 from kitbench.robots.spec import Decimation, RobotSpec
-from kitbench.sim.cameras import CameraSpec
+from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec
 
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
@@ -31,8 +31,8 @@ MAX_GRASP_WIDTH = 0.045
 
 HAND_CAMERA = CameraSpec(
     name="hand_camera",
-    width=128,
-    height=128,
+    width=OBSERVATION_SIZE[0],
+    height=OBSERVATION_SIZE[1],
     fov=np.pi / 2,
     position=(0.0464982, -0.0200011, 0.0360011),
     quaternion=(0.0, 0.70710678, 0.0, 0.70710678),  # looks along the gripper's approach axis

@@ -20,7 +20,7 @@ from kitbench.robots.assets import so101_mujoco_urdf, so101_urdf_path
 from kitbench.robots.registry import register_robot
 from kitbench.robots.spec import CollisionBox, Decimation, RobotSpec
 from kitbench.robots.units import SO_FOLLOWER
-from kitbench.sim.cameras import CameraSpec
+from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec
 
 # LeRobot's motor order (lerobot/robots/so_follower/so_follower.py), which the URDF's joint names follow.
 ARM_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll")
@@ -77,13 +77,12 @@ READY_ARM_QPOS = (0.0, -0.45, 0.45, 1.45, 1.5708)
 
 # A typical SO-101 station's two cameras, named as LeRobot's docs name them in `lerobot-record --robot.cameras`:
 # `front`, across the table looking back at the arm, and `wrist`, on the fixed jaw's mount looking along the jaw.
-FRONT_CAMERA = CameraSpec.looking_at("front", [0.25, 0.0, 0.30], [-0.12, 0.0, 0.0], 128, 128, 1.0)
+FRONT_CAMERA = CameraSpec.looking_at("front", [0.25, 0.0, 0.30], [-0.12, 0.0, 0.0], *OBSERVATION_SIZE, 1.0)
 # under the fixed jaw (link -x) near the wrist, looking along the approach (link -z) tilted 15 degrees towards the
 # jaws: the jaw's tip in the upper third of the image, the object between the jaws below it
 WRIST_CAMERA = CameraSpec(
     "wrist",
-    128,
-    128,
+    *OBSERVATION_SIZE,
     1.5,
     (-0.06, 0.0, -0.02),
     (math.cos(math.radians(37.5)), 0.0, math.sin(math.radians(37.5)), 0.0),

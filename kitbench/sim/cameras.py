@@ -9,7 +9,7 @@ camera on 2 CPU cores, and each texture read 0.2 ms more.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import sapien
@@ -20,6 +20,10 @@ from kitbench.geometry import look_at, pose_to_matrix
 _CV_FROM_SAPIEN = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], dtype=np.float64)
 # OpenGL camera axes (x right, y up, z backward) from SAPIEN's.
 _GL_TO_SAPIEN = np.array([[0, 0, -1], [-1, 0, 0], [0, 1, 0]], dtype=np.float64)
+
+
+# The observation cameras' image size (width, height) unless an env's `sensor_configs` asks for another.
+OBSERVATION_SIZE = (128, 128)
 
 
 @dataclass(frozen=True)
@@ -97,3 +101,42 @@ class Camera:
             "extrinsic_cv": world_to_cv[:3].astype(np.float32),
             "cam2world_gl": gl.astype(np.float32),
         }
+
+
+SIZE_KEYS = ("width", "height")
+
+
+def check_sensor_configs(configs, cameras: list[str]) -> dict[str, dict[str, int]]:
+    """ManiSkill's `sensor_configs` (image sizes only) as {camera: {"width": w, "height": h}}: `{"width": w,
+    "height": h}` applies to every camera, `{camera: {...}}` to one. A bad key or size is one line naming it and
+    the valid choices."""
+    from kitbench.errors import KitbenchError
+
+    if configs is None:
+        return {}
+    if not isinstance(configs, dict):
+        raise KitbenchError(f"sensor_configs must be a mapping, got {configs!r}")
+    common = {k: v for k, v in configs.items() if k in SIZE_KEYS}
+    per_camera = {k: v for k, v in configs.items() if k not in SIZE_KEYS}
+    for name, sizes in per_camera.items():
+        if name not in cameras:
+            raise KitbenchError(
+                f"sensor_configs: unknown key {name!r}; valid keys: {', '.join((*SIZE_KEYS, *cameras))}"
+            )
+        if not isinstance(sizes, dict) or set(sizes) - set(SIZE_KEYS):
+            raise KitbenchError(f"sensor_configs[{name!r}] must set only {' and '.join(SIZE_KEYS)}, got {sizes!r}")
+    out: dict[str, dict[str, int]] = {}
+    for camera in cameras:
+        sizes = {**common, **per_camera.get(camera, {})}
+        for key, value in sizes.items():
+            if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= 4096:
+                raise KitbenchError(f"sensor_configs {key} must be a whole number of pixels, 8 to 4096; got {value!r}")
+        if sizes:
+            out[camera] = sizes
+    return out
+
+
+def sized(spec: CameraSpec, configs: dict[str, dict[str, int]]) -> CameraSpec:
+    """`spec` at the image size `configs` (from `check_sensor_configs`) gives its camera, same field of view."""
+    sizes = configs.get(spec.name, {})
+    return replace(spec, width=sizes.get("width", spec.width), height=sizes.get("height", spec.height))

@@ -32,7 +32,7 @@ from kitbench.geometry import planar_yaw, quat_to_matrix, yaw_quat
 from kitbench.kits import BOARD_SIZE, NUM_SHAPES, Episode, EpisodeSet, load_episodes, place, shape_geometry
 from kitbench.registration import register_env
 from kitbench.sim.actors import build_convex_actor, build_static_mesh_actor
-from kitbench.sim.cameras import CameraSpec
+from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec
 
 POS_TOLERANCE = 0.02  # m
 ROT_TOLERANCE = math.radians(4.0)
@@ -200,7 +200,7 @@ class AssemblingKitsEnv(TabletopEnv):
 
     # -- building ------------------------------------------------------------------------------
     def _sensor_cameras(self):
-        return [CameraSpec.looking_at("base_camera", [0.2, 0, 0.4], [0, 0, 0], 128, 128, math.pi / 2)]
+        return [CameraSpec.looking_at("base_camera", [0.2, 0, 0.4], [0, 0, 0], *OBSERVATION_SIZE, math.pi / 2)]
 
     def _render_camera(self):
         return CameraSpec.looking_at("render_camera", [0.3, 0.3, 0.8], [0.0, 0.0, 0.1], 512, 512, 1.0)

@@ -19,7 +19,7 @@ from kitbench.envs.observations import pose7
 from kitbench.envs.tabletop import TabletopEnv
 from kitbench.geometry import quat_to_matrix, tilt_from_vertical
 from kitbench.registration import register_env
-from kitbench.sim.cameras import CameraSpec
+from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec
 from kitbench.sim.scene import set_actor_pose
 
 PEG_HALF_WIDTH = 0.025
@@ -130,7 +130,7 @@ class LiftPegUprightEnv(TabletopEnv):
         return "Pick up the peg lying on the table and stand it upright on the table."
 
     def _sensor_cameras(self):
-        return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 128, 128, math.pi / 2)]
+        return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], *OBSERVATION_SIZE, math.pi / 2)]
 
     def _initialize_episode(self, rng, options):
         half = SPAWN_HALF_WIDTH * self.task_scale

@@ -11,35 +11,18 @@ that touches data bit for bit the same there. The LeRobot plugin calls `install`
 
 from __future__ import annotations
 
-import logging
-import os
-import sys
-
 import torch
 
-log = logging.getLogger(__name__)
+from kitbench.training.switch import OFF, ON, TRAINING_SCRIPT, in_training, wanted as switch_wanted
 
 VAR = "KITBENCH_FLUSH_DENORMALS"
-ON = ("1", "true", "yes", "on")
-OFF = ("0", "false", "no", "off")
-TRAINING_SCRIPT = "lerobot.scripts.lerobot_train"
+__all__ = ["OFF", "ON", "TRAINING_SCRIPT", "VAR", "in_training", "install", "wanted"]
 
 
 def wanted() -> bool:
     """What `KITBENCH_FLUSH_DENORMALS` asks for (on when unset); a value outside ON and OFF is one logged line and
     leaves torch's default."""
-    value = os.environ.get(VAR, "1").strip().lower()
-    if value in ON:
-        return True
-    if value not in OFF:
-        log.error("%s=%r: expected one of %s; denormals kept", VAR, os.environ[VAR], ", ".join(ON + OFF))
-    return False
-
-
-def in_training() -> bool:
-    """Whether this process runs lerobot's training script (its console script or `python -m`)."""
-    main = getattr(sys.modules.get("__main__"), "__spec__", None)
-    return TRAINING_SCRIPT in sys.modules or getattr(main, "name", None) == TRAINING_SCRIPT
+    return switch_wanted(VAR, "denormals kept")
 
 
 def install() -> bool:

@@ -8,9 +8,10 @@ and the frame cache instead; everything else (loading, metadata, the episode sel
 samples are stock's, bit for bit: the same keys, dtypes, shapes and values, the image transforms called in the
 same order on the same tensors (`tests/test_training_input.py`).
 
-`install()` is the one place kitbench touches lerobot's internals: it makes `LeRobotDataset` build this reader.
-The LeRobot plugin calls it when lerobot imports it (`lerobot-train`, `lerobot-eval`). `KITBENCH_FAST_READER=0`
-keeps stock's reader.
+`install()` is the one place kitbench touches lerobot's internals: it makes `LeRobotDataset` build this reader,
+and has a kitbench recording checked (`kitbench.integrity`) before lerobot reads its metadata, so a damaged file
+is one line naming it rather than a traceback from pyarrow or a download attempt. The LeRobot plugin calls it
+when lerobot imports it (`lerobot-train`, `lerobot-eval`). `KITBENCH_FAST_READER=0` keeps stock's reader.
 """
 
 from __future__ import annotations
@@ -25,12 +26,14 @@ from typing import Any
 import numpy as np
 import torch
 from lerobot.configs import DEPTH_METER_UNIT
-from lerobot.datasets import lerobot_dataset
+from lerobot.datasets import factory as dataset_factory, lerobot_dataset
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.depth_utils import MM_PER_METRE, dequantize_depth
 from lerobot.datasets.io_utils import UINT16_PIL_MODES
 from lerobot.datasets.video_utils import decode_video_frames
 
+from kitbench.integrity import check_dataset
 from kitbench.metadata import is_recording
 from kitbench.training.columns import Columns, UnsupportedColumn
 from kitbench.training.frames import FrameCache, Layout, cache_key, decode_jobs, open_or_build
@@ -51,8 +54,22 @@ def is_kitbench_recording(root: Path) -> bool:
 
 
 def install() -> None:
-    """`LeRobotDataset` builds `FastReader` from now on, in this process and the loader workers it forks."""
+    """`LeRobotDataset` builds `FastReader` from now on, in this process and the loader workers it forks, and
+    every kitbench recording lerobot opens is checked first."""
     lerobot_dataset.DatasetReader = FastReader  # lerobot looks the class up at each build
+    # and the metadata class, in the two modules that build it for reading: `make_dataset` and `LeRobotDataset`
+    lerobot_dataset.LeRobotDatasetMetadata = CheckedMetadata
+    dataset_factory.LeRobotDatasetMetadata = CheckedMetadata
+
+
+class CheckedMetadata(LeRobotDatasetMetadata):
+    """lerobot's dataset metadata, read after `check_dataset` when the folder is a kitbench recording (a dataset
+    that is not one, or not on disk, is lerobot's alone)."""
+
+    def __init__(self, repo_id: str, root: str | Path | None = None, *args: Any, **kwargs: Any):
+        if root is not None and (Path(root) / "meta").is_dir() and is_kitbench_recording(Path(root)):
+            check_dataset(Path(root))
+        super().__init__(repo_id, root, *args, **kwargs)
 
 
 class FastReader(DatasetReader):

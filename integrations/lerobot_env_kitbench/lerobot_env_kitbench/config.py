@@ -25,10 +25,13 @@ _STATE_KEYS = {"agent_pos": (STATE, FeatureType.STATE), "environment_state": (EN
 
 
 @lru_cache(maxsize=16)
-def _env_features(task: str, control_mode: str, robot: str | None, obs_mode: str, points: int) -> tuple[dict, dict]:
-    """The task's observation features in `obs_mode` and its action feature, read off a state-only env: the env
-    is the one place they are defined, and a state env needs no renderer."""
-    env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot)
+def _env_features(
+    task: str, control_mode: str, robot: str | None, obs_mode: str, points: int, camera_size: str | None
+) -> tuple[dict, dict]:
+    """The task's observation features in `obs_mode` (its cameras at `camera_size`) and its action feature, read
+    off a state-only env: the env is the one place they are defined, and a state env needs no renderer."""
+    sensors = PolicyEnvSettings(task=task, camera_size=camera_size).sensor_configs
+    env = make_env(task, obs_mode="state", control_mode=control_mode, robot_uids=robot, sensor_configs=sensors)
     try:
         return observation_features(env, obs_mode, points), action_feature(env)
     finally:
@@ -50,9 +53,9 @@ class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
     '+'-joined) or pointcloud adds what a dataset recorded in that mode holds, under the same names.
     `control_mode` must be the one the training dataset was recorded in.
 
-    `task`, `robot`, `control_mode` and `pointcloud_points` are kitbench's own settings (`kitbench.env_settings`),
-    declared, documented and checked there once. The comment above each field is its `--help` text (draccus reads
-    comments, in this class and the ones it inherits from, not this docstring).
+    `task`, `robot`, `control_mode`, `pointcloud_points` and `camera_size` are kitbench's own settings
+    (`kitbench.env_settings`), declared, documented and checked there once. The comment above each field is its
+    `--help` text (draccus reads comments, in this class and the ones it inherits from, not this docstring).
     """
 
     # Control steps per second (20: the tasks' control frequency).
@@ -87,7 +90,9 @@ class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
         Perturbations(self.perturbations)  # refuses unknown names and levels out of range here, in one line
         register_lerobot_envs()  # tasks registered after this package was imported get their gym ids too
         obs_mode = "state" if self.obs_type == "state" else obs_mode_of(self.obs_type)
-        observations, action = _env_features(self.task, self.control_mode, self.robot, obs_mode, points)
+        observations, action = _env_features(
+            self.task, self.control_mode, self.robot, obs_mode, points, self.camera_size
+        )
         self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=tuple(action["shape"]))}
         self.features_map = {"action": "action"}
         for key, (name, kind) in _STATE_KEYS.items():
@@ -118,6 +123,8 @@ class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
             kwargs["robot_uids"] = self.robot
         if self.obs_type == "pointcloud":
             kwargs["pointcloud_points"] = self.pointcloud_points
+        if self.sensor_configs is not None:
+            kwargs["sensor_configs"] = self.sensor_configs
         if obs_mode_of(self.obs_type) not in ("state", "rgb"):
             kwargs["depth_unit"] = self.depth_unit
         return kwargs

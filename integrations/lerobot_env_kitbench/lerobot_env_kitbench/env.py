@@ -52,6 +52,7 @@ class LeRobotKitbenchEnv(gym.Env):
         robot_uids: str | None = None,
         pointcloud_points: int = DEFAULT_POINTS,
         depth_unit: str = "mm",
+        sensor_configs: dict | None = None,
     ):
         check_choice("obs_type", obs_type, OBS_TYPES)
         check_choice("depth_unit", depth_unit, ("mm", "m"))
@@ -66,6 +67,7 @@ class LeRobotKitbenchEnv(gym.Env):
             render_mode=render_mode,
             perturbations=perturbations,
             robot_uids=robot_uids,
+            sensor_configs=sensor_configs,
         ).unwrapped
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": self._env.sim_config.control_freq}

@@ -1,0 +1,205 @@
+"""The simulated SO-101 on a kitbench task as a LeRobot `Robot` (`KitbenchSO101`), in the real follower's layout
+(`lerobot/robots/so_follower`, `use_degrees`): `observation_features` and `action_features` are `<motor>.pos`
+(`shoulder_pan` ... `wrist_roll` in degrees, `gripper` 0 closed .. 100 open) and, with rgb, the `front` and `wrist`
+cameras' (height, width, 3) images; `send_action` takes goal positions and returns those sent (capped by
+`max_relative_target` as the follower caps them, clipped to the joints' ranges).
+
+What differs from the real follower: the goal positions drive the simulated arm in `pd_joint_pos` at the task's
+control rate (each `send_action` steps the simulation at most once, when a control period has passed since the
+last step, so lerobot's 30-60 fps loops run it in real time; `realtime=false`: one step per call); the simulation
+advances only as actions arrive; the scene resets itself, on the next seed, once it has run `settle_steps` past a
+success or reached its step limit, where a person resets a real station; nothing is calibrated (the simulated
+joints read the real arm's calibrated degrees by construction) and there is no port, torque or motor bus; the
+cameras are simulated at 128x128 (`camera_size`); the task's object state, which kitbench's state datasets also
+record (`observation.environment_state`), is not an observation here, as no real robot reports it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from functools import cached_property, lru_cache
+
+import numpy as np
+from lerobot.robots import Robot
+from lerobot.robots.utils import ensure_safe_goal_position
+from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
+
+from kitbench.env_settings import parse_size
+from kitbench.envs.features import IMAGES, STATE, action_names, observation_features, observation_frame
+from kitbench.envs.interface import KitbenchEnv
+from kitbench.registration import make_env
+from lerobot_robot_kitbench.config_kitbench_so101 import ROBOT, KitbenchSO101Config
+
+MODE = "pd_joint_pos"  # the follower takes absolute goal positions
+logger = logging.getLogger(__name__)
+
+
+def _sensors(camera_size: str | None) -> dict | None:
+    if camera_size is None:
+        return None
+    width, height = parse_size(camera_size)
+    return {"width": width, "height": height}
+
+
+@lru_cache(maxsize=16)
+def _layout(task: str, obs_mode: str, camera_size: str | None) -> tuple[tuple[str, ...], dict, tuple[str, ...]]:
+    """(the motors' names, each camera's image shape, the action's names), read off a state env: the env is the
+    one place they are defined, and a state env needs no renderer."""
+    env = make_env(task, obs_mode="state", control_mode=MODE, robot_uids=ROBOT, sensor_configs=_sensors(camera_size))
+    try:
+        features = observation_features(env, obs_mode)
+        motors = tuple(features[STATE]["names"])
+        cameras = {
+            name[len(IMAGES) :]: tuple(feature["shape"])
+            for name, feature in features.items()
+            if name.startswith(IMAGES) and tuple(feature["shape"])[-1] == 3
+        }
+        return motors, cameras, tuple(action_names(env))
+    finally:
+        env.close()
+
+
+class KitbenchSO101(Robot):
+    """The simulated SO-101 (module docstring)."""
+
+    config_class = KitbenchSO101Config
+    name = "kitbench_so101"
+
+    def __init__(self, config: KitbenchSO101Config):
+        super().__init__(config)
+        self.config = config
+        self.env: KitbenchEnv | None = None
+        self.obs = None
+        self.seed = config.seed
+        self.steps = 0  # control steps of the current scene
+        self.first_success: int | None = None
+        self.goal: dict[str, float] = {}  # the motors' goal positions, held between actions as the servos hold them
+        self.due: float | None = None  # when the next control step is due (wall clock)
+        self.scenes = 0  # scenes finished since connect
+
+    # -- the layout ---------------------------------------------------------------------------------------------
+    @cached_property
+    def _names(self) -> tuple[tuple[str, ...], dict, tuple[str, ...]]:
+        return _layout(self.config.task, self.config.obs_mode, self.config.camera_size)
+
+    @property
+    def motors(self) -> tuple[str, ...]:
+        return self._names[0]
+
+    @property
+    def cameras(self) -> dict[str, tuple[int, int, int]]:
+        """Each camera's image shape (height, width, 3), by the name lerobot records it under."""
+        return dict(self._names[1])
+
+    @property
+    def observation_features(self) -> dict:
+        return {**dict.fromkeys(self.motors, float), **self.cameras}
+
+    @property
+    def action_features(self) -> dict:
+        return dict.fromkeys(self._names[2], float)
+
+    # -- connection ---------------------------------------------------------------------------------------------
+    @property
+    def is_connected(self) -> bool:
+        return self.env is not None
+
+    def connect(self, calibrate: bool = True) -> None:
+        if self.env is not None:
+            raise DeviceAlreadyConnectedError(f"{self} is already connected")
+        c = self.config
+        self.env = make_env(
+            c.task,
+            obs_mode=c.obs_mode,
+            control_mode=MODE,
+            robot_uids=ROBOT,
+            sensor_configs=_sensors(c.camera_size),
+            max_episode_steps=c.episode_length,
+        )
+        self.scenes, self.due = 0, None
+        self._new_scene(c.seed)
+        logger.info("%s connected: %s, seed %d, %d Hz", self, c.task, c.seed, self.env.control_freq)
+
+    @property
+    def is_calibrated(self) -> bool:
+        return True  # the simulated joints read calibrated degrees by construction
+
+    def calibrate(self) -> None:
+        """Nothing to calibrate."""
+
+    def configure(self) -> None:
+        """Nothing to configure."""
+
+    def disconnect(self) -> None:
+        if self.env is None:
+            raise DeviceNotConnectedError(f"{self} is not connected")
+        self.env.close()
+        self.env = None
+
+    # -- observations and actions --------------------------------------------------------------------------------
+    def _env(self) -> KitbenchEnv:
+        if self.env is None:
+            raise DeviceNotConnectedError(f"{self} is not connected; run connect() first")
+        return self.env
+
+    def get_observation(self) -> dict:
+        env = self._env()
+        frame = observation_frame(env, self.obs)
+        observation: dict = {name: float(v) for name, v in zip(self.motors, frame[STATE], strict=True)}
+        for camera in self.cameras:
+            observation[camera] = frame[IMAGES + camera]
+        return observation
+
+    def send_action(self, action: dict) -> dict:
+        env = self._env()
+        goal = {name: float(action[name]) for name in self.action_features if name in action}
+        target = self.config.max_relative_target
+        if target is not None and goal:
+            present = dict(zip(self.motors, observation_frame(env, self.obs)[STATE], strict=True))
+            goal = ensure_safe_goal_position({k: (v, float(present[k])) for k, v in goal.items()}, float(target))
+        space = env.action_space
+        names = list(self.action_features)
+        for name, value in list(goal.items()):
+            i = names.index(name)
+            goal[name] = float(np.clip(value, space.low[i], space.high[i]))
+        self.goal.update(goal)
+        if self._step_due():
+            self._step(env)
+        return goal
+
+    # -- the simulation ------------------------------------------------------------------------------------------
+    def _step_due(self) -> bool:
+        """Whether a control step is due: always without `realtime`, else once a control period has passed on the
+        wall-clock schedule (a caller more than a period behind starts it afresh)."""
+        if not self.config.realtime:
+            return True
+        period = self._env().control_timestep
+        now = time.perf_counter()
+        if self.due is not None and now < self.due:
+            return False
+        behind = self.due is None or now - self.due > period
+        self.due = (now if behind else self.due) + period
+        return True
+
+    def _step(self, env: KitbenchEnv) -> None:
+        vector = np.array([self.goal[name] for name in self.action_features], dtype=np.float32)
+        self.obs, _, _, truncated, info = env.step(vector)
+        if info["success"] and self.first_success is None:
+            self.first_success = self.steps
+        self.steps += 1
+        settled = self.first_success is not None and self.steps - 1 - self.first_success >= self.config.settle_steps
+        if settled or truncated:
+            outcome = "success" if self.first_success is not None else "no success"
+            logger.info("%s: seed %d ended after %d steps (%s); next scene", self, self.seed, self.steps, outcome)
+            self.scenes += 1
+            self._new_scene(self.seed + 1)
+
+    def _new_scene(self, seed: int) -> None:
+        """Reset on `seed`; the goals become where the arm now is (the servos hold their positions)."""
+        env = self._env()
+        self.obs, _ = env.reset(seed=seed)
+        self.seed, self.steps, self.first_success = seed, 0, None
+        state = observation_frame(env, self.obs)[STATE]
+        motors = dict(zip(self.motors, state, strict=True))
+        self.goal = {name: float(motors[name]) for name in self.action_features}

@@ -1,0 +1,259 @@
+"""A recording killed at any moment of its life resumes into the recording an uninterrupted run makes.
+
+Each case kills `kitbench record` with SIGKILL at a named fault point (`kitbench.faults`: the process kills
+itself the nth time it passes the point, so moments a wall-clock kill almost never hits, inside a commit or
+between its two renames, are reached every time), resumes it, and compares the result with an uninterrupted
+recording of the same seeds: every data column, the episode metadata, the settings, the MCAP logs byte for byte,
+nothing left beside the dataset. Killing at wall-clock moments, and the other writers (shards, convert, eval
+--save-dataset, merge), are in test_durability.py, test_ray_executor.py and below.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import kitbench  # noqa: F401
+from kitbench import faults
+from kitbench.errors import KitbenchError
+from kitbench.metadata import read_episodes
+from kitbench.recording.dataset import recover
+from kitbench.recording.journal import journal_root
+from kitbench.recording.recorder import RecordConfig, record
+from tests.datasets_equal import no_leftovers, same_content
+
+ROOT = Path(__file__).resolve().parents[1]
+TASK = "LiftPegUpright-v1"
+# LeRobot buffers episode metadata ten episodes at a time: past ten, a session has an episode index on disk whose
+# data file has no footer yet, the state the first report of a failing resume was in.
+EPISODES = 12
+OPEN = 30.0  # commit interval that keeps one session open for the whole recording
+EACH = 0.0  # a commit after every episode
+
+# case -> the commit interval, and the fault point each killed run stops at (a second one: killed again while
+# resuming); the passes counted are the run's own.
+CASES: dict[str, tuple[float, list[str]]] = {
+    "before the first episode": (OPEN, ["record.started"]),
+    "the journal's settings half written": (OPEN, ["journal.write:1"]),
+    "an MCAP log half written to the journal": (OPEN, ["journal.write:4"]),
+    "an episode half written to the journal": (OPEN, ["journal.write:5"]),
+    "journaled, not yet in the session": (OPEN, ["journal.added:3"]),
+    "half an episode in LeRobot's buffer": (OPEN, ["writer.frames:2"]),
+    "the first data file open": (OPEN, ["writer.saved:1"]),
+    "a data file open beside an episode index": (OPEN, ["writer.saved:11"]),
+    "an MCAP log linked into the session": (OPEN, ["session.published:6"]),
+    "a session finalized": (EACH, ["commit.finalized:3"]),
+    "kitbench's metadata written": (EACH, ["commit.metadata:2"]),
+    "the first commit complete, not in place": (EACH, ["commit.card:1"]),
+    "a commit complete, not in place": (EACH, ["commit.card:4"]),
+    "the dataset set aside": (EACH, ["commit.retired:2"]),
+    "the first commit in place": (EACH, ["commit.swapped:1"]),
+    "a commit in place, the old dataset not deleted": (EACH, ["commit.swapped:3"]),
+    "committed, its episodes still journaled": (EACH, ["commit.done:5"]),
+    "the journal half trimmed": (EACH, ["journal.discard:3"]),
+    "the last commit made, the journal being deleted": (OPEN, ["record.finishing"]),
+    "killed again while republishing": (OPEN, ["writer.saved:8", "resume.republish:3"]),
+    "killed at a commit, then inside the next": (EACH, ["commit.retired:2", "commit.finalized:2"]),
+}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("reference") / "ds"
+    record(RecordConfig.of(task=TASK, episodes=EPISODES, out=out), progress=False)
+    return out
+
+
+def _command(out: Path, interval: float, resume: bool) -> list[str]:
+    cmd = [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--episodes", str(EPISODES)]
+    return [*cmd, "--out", str(out), "--commit-interval", str(interval), *(["--resume"] if resume else [])]
+
+
+def killed_at(cmd: list[str], fault: str) -> None:
+    """Run `cmd` with the fault point armed; it must die there, by SIGKILL."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", faults.VAR: fault}
+    env.pop(faults.OWNER_VAR, None)
+    run = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == -signal.SIGKILL, f"{fault} was not reached (exit {run.returncode}): {run.stderr[-2000:]}"
+
+
+@pytest.mark.parametrize(("interval", "kills"), CASES.values(), ids=CASES.keys())
+def test_a_recording_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(tmp_path, reference, interval, kills):
+    out = tmp_path / "ds"
+    for i, fault in enumerate(kills):
+        killed_at(_command(out, interval, resume=i > 0), fault)
+    assert out.exists() or journal_root(out).exists()  # something to resume
+    summary = record(
+        RecordConfig.of(task=TASK, episodes=EPISODES, out=out, commit_interval=interval, resume=True), progress=False
+    )
+    assert summary.stored == EPISODES
+    same_content(reference, out)
+    no_leftovers(out)
+
+
+def test_every_fault_point_is_passed_somewhere_in_the_code():
+    """A point named in `faults.POINTS` that no code passes would make a case above test nothing."""
+    code = "\n".join(p.read_text() for p in (ROOT / "kitbench").rglob("*.py") if p.name != "faults.py")
+    missing = [name for name in faults.POINTS if f'faults.point("{name}")' not in code]
+    assert not missing, missing
+
+
+def test_a_bad_fault_value_is_one_line_naming_the_points(tmp_path):
+    env = {**os.environ, faults.VAR: "commit.nowhere:2"}
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kitbench.cli",
+            "record",
+            "--task",
+            TASK,
+            "--episodes",
+            "1",
+            "--out",
+            str(tmp_path / "x"),
+        ],
+        env=env,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 2
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "'commit.nowhere'" in lines[0] and "commit.retired" in lines[0]
+    assert not (tmp_path / "x").exists() and not journal_root(tmp_path / "x").exists()
+    with pytest.raises(KitbenchError, match="whole number"):
+        faults.parse("commit.card:0")
+
+
+# -- the other writers ---------------------------------------------------------------------------------------
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "kitbench.cli", *args]
+
+
+def _ok(cmd: list[str]) -> subprocess.CompletedProcess:
+    run = subprocess.run(
+        cmd, env={**os.environ, "HF_HUB_OFFLINE": "1"}, cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "Traceback" not in run.stderr
+    return run
+
+
+SHARDED = {
+    "a shard half unpacked into the journal": "shards.extracting:2",
+    "the shards merged, not in place": "shards.merged:1",
+    "the merge in place, the shards still journaled": "shards.swapped:1",
+}
+
+
+@pytest.mark.parametrize("fault", SHARDED.values(), ids=SHARDED.keys())
+def test_a_sharded_recording_killed_at_a_fault_point_resumes_into_one_writers_recording(tmp_path, reference, fault):
+    out = tmp_path / "ds"
+    sharded = ["--shard-episodes", "4", "--workers", "2"]
+    killed_at([*_command(out, OPEN, resume=False), *sharded], fault)
+    _ok([*_command(out, OPEN, resume=True), *sharded])
+    same_content(reference, out)
+    no_leftovers(out)
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory, reference) -> Path:
+    out = tmp_path_factory.mktemp("converted") / "ds"
+    _ok(_cli("convert", str(reference), "--out", str(out), "--control-mode", "pd_joint_pos"))
+    return out
+
+
+@pytest.mark.parametrize(
+    ("interval", "fault"),
+    [(OPEN, "writer.saved:7"), (EACH, "commit.retired:3")],
+    ids=["a data file open", "the dataset set aside"],
+)
+def test_a_conversion_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(
+    tmp_path, reference, converted, interval, fault
+):
+    out = tmp_path / "ds"
+    convert = _cli(
+        "convert",
+        str(reference),
+        "--out",
+        str(out),
+        "--control-mode",
+        "pd_joint_pos",
+        "--commit-interval",
+        str(interval),
+    )
+    killed_at(convert, fault)
+    _ok([*convert, "--resume"])
+    same_content(converted, out)
+    no_leftovers(out)
+
+
+def _eval_save(reference: Path, report: Path, dataset: Path, *extra: str) -> list[str]:
+    return _cli(
+        "eval",
+        "--task",
+        TASK,
+        "--seed",
+        "0",
+        "--episodes",
+        "4",
+        "--policy",
+        f"replay:{reference}",
+        "--out",
+        str(report),
+        "--save-dataset",
+        str(dataset),
+        *extra,
+    )
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory, reference) -> Path:
+    folder = tmp_path_factory.mktemp("saved")
+    _ok(_eval_save(reference, folder / "report", folder / "ds"))
+    return folder / "ds"
+
+
+@pytest.mark.parametrize("fault", ["writer.saved:2", "commit.card:1", "commit.retired:1"])
+def test_an_evaluation_killed_while_saving_its_dataset_leaves_the_old_one_or_the_new_one_whole(
+    tmp_path, reference, saved, fault
+):
+    """Saved over an existing dataset (--overwrite): a kill leaves it as it was or the new one whole, never
+    neither; the same command again writes the new one."""
+    dataset = tmp_path / "ds"
+    _ok(_eval_save(reference, tmp_path / "first", dataset, "--episodes", "2"))
+    killed_at(_eval_save(reference, tmp_path / "report", dataset, "--overwrite"), fault)
+    recover(dataset)
+    seeds = [e.seed for e in read_episodes(dataset)]
+    assert seeds in ([0, 1], [0, 1, 2, 3])  # the old dataset, or the new one whole
+    _ok(_eval_save(reference, tmp_path / "report", dataset, "--overwrite"))
+    same_content(saved, dataset)
+    no_leftovers(dataset)
+
+
+@pytest.fixture(scope="module")
+def halves(tmp_path_factory) -> tuple[Path, Path, Path]:
+    folder = tmp_path_factory.mktemp("halves")
+    a, b, merged = folder / "a", folder / "b", folder / "merged"
+    record(RecordConfig.of(task=TASK, episodes=EPISODES // 2, out=a), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=EPISODES // 2, seed=EPISODES // 2, out=b), progress=False)
+    _ok(_cli("merge", str(a), str(b), "--out", str(merged)))
+    return a, b, merged
+
+
+@pytest.mark.parametrize("fault", ["merge.aggregated:1", "merge.retired:1"])
+def test_a_merge_killed_at_a_fault_point_leaves_nothing_and_runs_again(tmp_path, halves, fault):
+    a, b, merged = halves
+    out = tmp_path / "merged"
+    _ok(_cli("merge", str(a), str(b), "--out", str(out)))  # an earlier merge, replaced below
+    killed_at(_cli("merge", str(a), str(b), "--out", str(out), "--overwrite"), fault)
+    _ok(_cli("merge", str(a), str(b), "--out", str(out), "--overwrite"))
+    same_content(merged, out)
+    no_leftovers(out)

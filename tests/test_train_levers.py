@@ -1,0 +1,63 @@
+"""`bench/train_levers.py`: a CPU training update of an image config, by parts and lever by lever, as lerobot-train
+builds and runs it; bad arguments are one line (exit 2)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from kitbench.recording.recorder import load_recipe, record
+from tests.lerobot_cli import OFFLINE
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "bench" / "train_levers.py"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--levers", "bf17"], "'bf17' is not a lever"),
+        (["--levers", "size"], "'size' is not a lever"),
+        (["--steps", "1"], "--steps 1: give at least 2"),
+        (["--config", "policies/nothing.json"], "no such file"),
+        (["--config", "policies/act_lift_peg_upright_rgb.json", "--dataset", "a", "--dataset", "b"], "one per"),
+    ],
+)
+def test_bad_arguments_are_one_line(args, message):
+    run = subprocess.run([sys.executable, str(BENCH), *args], capture_output=True, text=True, cwd=ROOT, env=OFFLINE)
+    assert run.returncode == 2 and message in run.stderr.strip().splitlines()[-1]
+
+
+def test_the_bench_times_the_parts_and_the_levers_of_a_real_update(needs_vulkan, tmp_path):
+    data = tmp_path / "lpu"
+    recipe = load_recipe(ROOT / "datasets" / "lift_peg_upright_rgb.toml", episodes=2, out=data, workers=1)
+    record(recipe.replace(mcap=False), progress=False)
+    run = subprocess.run(
+        [
+            sys.executable,
+            str(BENCH),
+            "--config",
+            "policies/act_lift_peg_upright_rgb.json",
+            "--dataset",
+            str(data),
+            "--steps",
+            "2",
+            "--levers",
+            "baseline,bf16,size=64,batch=4",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=OFFLINE,
+        timeout=900,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    lines = run.stdout.splitlines()
+    parts = next(line for line in lines if "parts of one update" in line)
+    assert "backbone fwd+bwd" in parts and "optimizer" in parts and "data for a batch" in parts
+    for lever in ("baseline", "bf16", "size=64", "batch=4"):
+        row = next(line for line in lines if line.strip().startswith(lever))
+        assert "s/update" in row and "samples/s" in row, row
