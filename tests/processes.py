@@ -4,8 +4,14 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
+
+
+def record_command(out: Path, task: str, *args: str) -> list[str]:
+    """`kitbench record` as a user types it, run by this interpreter."""
+    return [sys.executable, "-m", "kitbench.cli", "record", "--task", task, "--out", str(out), *args]
 
 
 def kill_once_committed(cmd: list[str], out: Path, episodes: int = 2, timeout: float = 240) -> None:

@@ -320,21 +320,11 @@ def test_a_damaged_journal_entry_is_recorded_again_in_seed_order(recording, tmp_
     """A journal entry damaged on disk (a kill never leaves one) is recorded again, with those after it, and the
     recording equals the undamaged one."""
     from tests.datasets_equal import no_leftovers, same_content
+    from tests.processes import record_command
     from tests.test_kill_points import killed_at
 
     out = tmp_path / "ds"
-    cmd = [
-        sys.executable,
-        "-m",
-        "kitbench.cli",
-        "record",
-        "--task",
-        TASK,
-        "--episodes",
-        str(EPISODES),
-        "--out",
-        str(out),
-    ]
+    cmd = record_command(out, TASK, "--episodes", str(EPISODES))
     killed_at(cmd, f"writer.saved:{EPISODES - 1}")
     entries = sorted(journal_root(out).glob("seed-*.npz"))
     assert len(entries) == EPISODES - 1

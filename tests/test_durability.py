@@ -8,7 +8,6 @@ import os
 import random
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import kitbench  # noqa: F401
 from kitbench.recording.journal import EpisodeJournal, journal_root
 from kitbench.recording.recorder import RecordConfig, record
 from tests.datasets_equal import same_content
+from tests.processes import record_command
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONUNBUFFERED": "1"}
@@ -26,7 +26,7 @@ TASK = "LiftPegUpright-v1"
 
 
 def _cli(out: Path, *args: str) -> list[str]:
-    return [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--out", str(out), *args]
+    return record_command(out, TASK, *args)
 
 
 def _wait_for_journal(out: Path, count: int, proc: subprocess.Popen, timeout: float = 240.0) -> int:

@@ -26,6 +26,7 @@ from kitbench.recording.dataset import recover
 from kitbench.recording.journal import journal_root
 from kitbench.recording.recorder import RecordConfig, record
 from tests.datasets_equal import no_leftovers, same_content
+from tests.processes import record_command
 
 ROOT = Path(__file__).resolve().parents[1]
 TASK = "LiftPegUpright-v1"
@@ -70,8 +71,8 @@ def reference(tmp_path_factory) -> Path:
 
 
 def _command(out: Path, interval: float, resume: bool) -> list[str]:
-    cmd = [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--episodes", str(EPISODES)]
-    return [*cmd, "--out", str(out), "--commit-interval", str(interval), *(["--resume"] if resume else [])]
+    flags = ["--episodes", str(EPISODES), "--commit-interval", str(interval), *(["--resume"] if resume else [])]
+    return record_command(out, TASK, *flags)
 
 
 def killed_at(cmd: list[str], fault: str) -> None:
@@ -106,18 +107,7 @@ def test_every_fault_point_is_passed_somewhere_in_the_code():
 def test_a_bad_fault_value_is_one_line_naming_the_points(tmp_path):
     env = {**os.environ, faults.VAR: "commit.nowhere:2"}
     run = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "kitbench.cli",
-            "record",
-            "--task",
-            TASK,
-            "--episodes",
-            "1",
-            "--out",
-            str(tmp_path / "x"),
-        ],
+        record_command(tmp_path / "x", TASK, "--episodes", "1"),
         env=env,
         cwd=ROOT,
         capture_output=True,
