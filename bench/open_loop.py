@@ -72,6 +72,7 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int]) -> dict:
     """Per phase (in the order the expert's `phases` declares them): lists of the horizontal, vertical (m) and
     angular (deg) distances between where the policy's action and the expert's lead, the differences of their
     gripper commands and the expert's step lengths (m)."""
+    from kitbench.env_settings import canonical_size, parse_size
     from kitbench.policies.expert import ExpertPolicy
     from kitbench.policies.lerobot_policy import LeRobotPolicy
     from kitbench.registration import make_env
@@ -86,11 +87,13 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int]) -> dict:
         policy = LeRobotPolicy(checkpoint, options={"n_action_steps": 1})
         predict = policy.act
     needs = policy.requirements()
+    size = canonical_size(needs.get("camera_size"))  # the cameras at the size the policy was trained at
     env = make_env(
         task,
         obs_mode=needs.get("obs_mode", "state"),
         control_mode=needs.get("control_mode", "pd_joint_pos"),
         robot_uids=needs.get("robot"),
+        **({"sensor_configs": dict(zip(("width", "height"), parse_size(size), strict=True))} if size else {}),
     )
     u = env.unwrapped
     n_arm = u.action_space.shape[0] - 1

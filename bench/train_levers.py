@@ -120,14 +120,19 @@ class Bench:
 
 
 def _images(batch: dict) -> list[str]:
-    return [k for k, v in batch.items() if k.startswith("observation.images.") and getattr(v, "ndim", 0) == 4]
+    # (batch, C, H, W), or (batch, observation steps, C, H, W) for Diffusion
+    return [k for k, v in batch.items() if k.startswith("observation.images.") and getattr(v, "ndim", 0) >= 4]
 
 
-def _backbone(policy):
+def _backbones(policy, cameras: int) -> list:
+    """The vision backbone each camera's images go through, in the batch's camera order."""
+    import torch
+
     model = getattr(policy, "model", None)
     if model is not None and hasattr(model, "backbone"):
-        return model.backbone  # ACT's ResNet trunk
-    return policy.diffusion.rgb_encoder  # Diffusion's per-camera encoder
+        return [model.backbone] * cameras  # ACT's ResNet trunk, shared
+    encoder = policy.diffusion.rgb_encoder  # Diffusion's: one shared, or one a camera
+    return list(encoder) if isinstance(encoder, torch.nn.ModuleList) else [encoder] * cameras
 
 
 def measure(bench: Bench, lever: str, steps: int) -> dict:
@@ -176,9 +181,13 @@ def measure(bench: Bench, lever: str, steps: int) -> dict:
     if size is not None:
         for b in batches:
             for key in _images(b):
-                b[key] = torch.nn.functional.interpolate(b[key], size=(size, size), mode="bilinear", antialias=True)
+                image = b[key]
+                flat = torch.nn.functional.interpolate(
+                    image.flatten(0, -4), size=(size, size), mode="bilinear", antialias=True
+                )
+                b[key] = flat.reshape(*image.shape[:-2], size, size)
     channels_last = name in ("channels_last", "bf16+channels_last")
-    if channels_last:
+    if channels_last:  # as a training loop of one's own would (lerobot's checkpoint can't save its optimizer state)
         policy = policy.to(memory_format=torch.channels_last)
         for b in batches:
             for key in _images(b):
@@ -239,13 +248,13 @@ def _parts(policy, batch, optimizer, steps: int, context) -> dict:
     """The baseline update's parts: the backbone's forward and backward on the batch's images, the optimizer."""
     import torch
 
-    backbone = _backbone(policy)
     images = [batch[k] for k in _images(batch)]
+    backbones = _backbones(policy, len(images))
     times = []
     for _ in range(steps):
         t = time.perf_counter()
         with context():
-            for image in images:
+            for image, backbone in zip(images, backbones, strict=True):
                 x = image.flatten(0, -4) if image.ndim > 4 else image
                 out = backbone(x)
                 out = out["feature_map"] if isinstance(out, dict) else out

@@ -169,13 +169,17 @@ class LearningLoop:
         ]
 
 
+# From the camera on both: the GPU's config, and the one sized for 2 CPU cores (bf16, batch 32, 2,500 steps)
+LOOP_CONFIG = {True: "act_lift_peg_upright_rgb", False: "act_lift_peg_upright_rgb_cpu"}
+
+
 def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
-    """The image config where torch sees CUDA (it needs a GPU), else the state config (2 CPU cores suffice)."""
+    """The camera config for this machine: the GPU's where torch sees CUDA, else the one trained on 2 CPU cores."""
     from kitbench.reproduce import load_published
     from kitbench.training.reference import reference_seconds, scaled_minutes
     from kitbench.training.run import train_threads
 
-    name = "act_lift_peg_upright_rgb" if cuda else "act_lift_peg_upright_state"
+    name = LOOP_CONFIG[cuda]
     entry = load_published()[name]
     config = ROOT / "policies" / f"{name}.json"
     recipe = entry.recipe.relative_to(ROOT)

@@ -300,7 +300,7 @@ def test_a_policy_that_names_camera_parameters_is_fed_them(tmp_path, needs_vulka
     extrinsic, pose = f"{SENSOR_PARAM}base_camera.extrinsic_cv", f"{SENSOR_PARAM}base_camera.cam2world_gl"
     inputs = ["observation.state", "observation.images.base_camera", extrinsic, pose]
     policy = LeRobotPolicy(str(_checkpoint(tmp_path / "act", env, inputs)))
-    assert policy.requirements() == {"obs_mode": "rgb"}
+    assert policy.requirements() == {"obs_mode": "rgb", "camera_size": "128x128"}  # the size it was trained at
     obs, info = env.reset(seed=4)
     policy.reset(env, 4, obs, info)
     batch = policy._batch(obs)

@@ -146,9 +146,9 @@ def test_config_fits_the_data_its_recipe_writes(path):
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
-def test_state_configs_train_on_a_cpu_and_image_configs_say_they_want_a_gpu(path):
+def test_state_and_cpu_configs_train_on_a_cpu_and_the_other_image_configs_say_they_want_a_gpu(path):
     raw = json.loads(path.read_text())
-    assert raw["policy"]["device"] == ("cpu" if path.stem.endswith("_state") else "cuda")
+    assert raw["policy"]["device"] == ("cpu" if path.stem.endswith(("_state", "_cpu")) else "cuda")
     assert raw["eval"]["batch_size"] > 1 and raw["eval"]["use_async_envs"] is True
     if path.stem.endswith("_state"):
         assert 0 < raw["env_eval_freq"] <= raw["steps"]
@@ -156,7 +156,7 @@ def test_state_configs_train_on_a_cpu_and_image_configs_say_they_want_a_gpu(path
         assert raw["env_eval_freq"] == 0
 
 
-@pytest.mark.parametrize("path", [p for p in CONFIGS if p.stem.endswith("_rgb")], ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", [p for p in CONFIGS if "_rgb" in p.stem], ids=lambda p: p.stem)
 def test_image_configs_read_the_cameras_and_joints_not_the_object_pose(path):
     """lerobot-train feeds a policy every `observation.*` feature unless the config names its inputs, and a
     camera dataset also holds `observation.environment_state` (the objects' poses): an image config that left
@@ -167,7 +167,14 @@ def test_image_configs_read_the_cameras_and_joints_not_the_object_pose(path):
     raw = json.loads(path.read_text())
     inputs = raw["policy"]["input_features"]
     recipe = RECIPES[raw["dataset"]["root"]]
-    env = make_env(recipe.task, obs_mode="state", control_mode=recipe.env.control_mode, robot_uids=recipe.env.robot)
+    sizes = recipe.env.sensor_configs  # the recipe's camera size, where it sets one
+    env = make_env(
+        recipe.task,
+        obs_mode="state",
+        control_mode=recipe.env.control_mode,
+        robot_uids=recipe.env.robot,
+        **({"sensor_configs": sizes} if sizes else {}),
+    )
     try:
         recorded = observation_features(env, recipe.env.obs_mode)
     finally:

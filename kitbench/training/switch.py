@@ -1,6 +1,5 @@
-"""The plugin's switches for what it changes in `lerobot-train` (`KITBENCH_FLUSH_DENORMALS`,
-`KITBENCH_CHANNELS_LAST`): on unless set to an off value; any other value is one logged line naming the choices,
-and the change is not made."""
+"""The plugin's switches for what it changes in `lerobot-train` (`KITBENCH_FLUSH_DENORMALS`): on unless set to an
+off value; any other value is one logged line naming the choices, and the change is not made."""
 
 from __future__ import annotations
 
