@@ -191,7 +191,8 @@ def measure(bench: Bench, lever: str, steps: int) -> dict:
         policy = policy.to(memory_format=torch.channels_last)
         for b in batches:
             for key in _images(b):
-                b[key] = b[key].contiguous(memory_format=torch.channels_last)
+                if b[key].ndim == 4:  # Diffusion's (batch, steps, C, H, W) meets the channels-last weights flattened
+                    b[key] = b[key].contiguous(memory_format=torch.channels_last)
     compile_seconds = None
     if name == "compile":
         started = time.perf_counter()

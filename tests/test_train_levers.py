@@ -36,7 +36,7 @@ def test_bad_arguments_are_one_line(args, message):
     ("config", "levers"),
     [
         ("act_lift_peg_upright_rgb", "baseline,bf16,channels_last,size=64,batch=4"),
-        ("diffusion_lift_peg_upright_rgb", "baseline,size=64"),  # images (batch, observation steps, C, H, W)
+        ("diffusion_lift_peg_upright_rgb", "baseline,channels_last,size=64"),  # images (batch, steps, C, H, W)
     ],
 )
 def test_the_bench_times_the_parts_and_the_levers_of_a_real_update(needs_vulkan, tmp_path, config, levers):
