@@ -68,16 +68,19 @@ def _rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
 
 
-def measure(checkpoint: str, task: str, seeds: Sequence[int]) -> dict:
+def measure(checkpoint: str, task: str, seeds: Sequence[int], expert_options: dict | None = None) -> dict:
     """Per phase (in the order the expert's `phases` declares them): lists of the horizontal, vertical (m) and
     angular (deg) distances between where the policy's action and the expert's lead, the differences of their
-    gripper commands and the expert's step lengths (m)."""
+    gripper commands and the expert's step lengths (m). The expert runs with `expert_options`, by default those
+    of the expert that recorded the checkpoint's training data (`close_steps=8`: the states it learned from)."""
     from kitbench.env_settings import canonical_size, parse_size
     from kitbench.policies.expert import ExpertPolicy
-    from kitbench.policies.lerobot_policy import LeRobotPolicy
+    from kitbench.policies.lerobot_policy import LeRobotPolicy, trained_setting
     from kitbench.registration import make_env
 
     policy = LeRobotPolicy(checkpoint)
+    if expert_options is None:
+        expert_options = trained_setting(policy.path, "expert_options") or {}
     if policy.config.type == "act":
 
         def predict(obs):
@@ -101,7 +104,7 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int]) -> dict:
     try:
         for seed in seeds:
             obs, info = env.reset(seed=seed)
-            expert = ExpertPolicy()
+            expert = ExpertPolicy(expert_options)
             expert.reset(env, seed, obs, info)
             policy.reset(env, seed, obs, info)
             previous = None
@@ -127,7 +130,13 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int]) -> dict:
     finally:
         env.close()
     ordered = {p: phases[p] for p in sorted(phases, key=lambda p: order.index(p) if p in order else len(order))}
-    return {"checkpoint": checkpoint, "task": task, "seeds": seeds_json(seeds), "phases": ordered}
+    return {
+        "checkpoint": checkpoint,
+        "task": task,
+        "seeds": seeds_json(seeds),
+        "expert_options": expert_options,
+        "phases": ordered,
+    }
 
 
 def summarize(measured: dict) -> list[dict]:
@@ -168,21 +177,42 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", required=True, help="the task the checkpoint was trained on")
     parser.add_argument("--seeds", default="20", help="N (seeds 0..N-1), A:B or S1,S2,... (default 20)")
     parser.add_argument("--out", help="also write the rows, and the settings, to this JSON file")
+    parser.add_argument(
+        "--expert-option",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="the expert's planner setting (repeatable; default: those of the expert that recorded the training data)",
+    )
     args = parser.parse_args(argv)
     try:
         from kitbench.registration import task_entry
 
         task_entry(args.task)
         seeds = parse_seeds(args.seeds)
-        measured = measure(args.checkpoint, args.task, seeds)
+        from kitbench.policies.lerobot_policy import parse_option
+
+        options = None if args.expert_option is None else dict(map(parse_option, args.expert_option))
+        measured = measure(args.checkpoint, args.task, seeds, options)
     except KitbenchError as exc:
         print(f"open_loop: error: {exc}", file=sys.stderr)
         return 2
     rows = summarize(measured)
-    print(f"{args.checkpoint} on {args.task}, seeds {describe_seeds(seeds)}, expert's states:")
+    settings = ", ".join(f"{k}={v}" for k, v in measured["expert_options"].items())
+    print(
+        f"{args.checkpoint} on {args.task}, seeds {describe_seeds(seeds)}, expert's states"
+        + (f" ({settings})" if settings else "")
+        + ":"
+    )
     print_table(rows)
     if args.out:
-        report = {"checkpoint": args.checkpoint, "task": args.task, "seeds": seeds_json(seeds), "rows": rows}
+        report = {
+            "checkpoint": args.checkpoint,
+            "task": args.task,
+            "seeds": seeds_json(seeds),
+            "expert_options": measured["expert_options"],
+            "rows": rows,
+        }
         Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     return 0
 

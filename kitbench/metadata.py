@@ -50,6 +50,7 @@ IDENTITY = (
     "camera_size",
     "rgb_storage",
     "label",
+    "expert_options",
     "source",
     "kitbench_version",
 )
@@ -75,6 +76,7 @@ class RecordingInfo:
     camera_size: str | None = None  # "WxH" when not the cameras' own size
     rgb_storage: str = "video"
     label: str | None = None  # who labelled each frame's action (DAgger); None: the acting policy
+    expert_options: dict[str, Any] | None = None  # the expert's config fields a recording replaced (close_steps=6)
     source: str | None = None  # the recording a conversion re-simulated
     kitbench_version: str | None = None  # None: made before 0.2.0
     repo_id: str | None = None
@@ -143,6 +145,7 @@ class RecordingInfo:
             "pointcloud_points",
             "camera_size",
             "label",
+            "expert_options",
             "source",
             "repo_id",
             "fps",
@@ -226,6 +229,7 @@ _SETTING_TYPES: dict[str, tuple[type, ...]] = {
     "camera_size": (str, _NONE),
     "rgb_storage": (str,),
     "label": (str, _NONE),
+    "expert_options": (dict, _NONE),
     "source": (str, _NONE),
     "kitbench_version": (str, _NONE),
     "repo_id": (str, _NONE),

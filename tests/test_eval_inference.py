@@ -223,10 +223,14 @@ def test_a_bad_policy_option_is_refused_before_any_episode_runs(checkpoints, tmp
 
 def test_policy_options_need_a_policy_with_settings(tmp_path):
     suite = adhoc_suite("LiftPegUpright-v1", 2, 0)
+    config = EvalConfig.of(suite, "random", tmp_path / "r", policy_options=(("n_action_steps", 1),))
+    with pytest.raises(KitbenchError, match=r"need a .*expert.* policy; 'random' has no settings") as error:
+        run_eval(config, progress=False)
+    assert "lerobot:<checkpoint>" in str(error.value) and "teleop:<device>" in str(error.value)
+    assert not (tmp_path / "r").exists()
+    # the expert's settings are its planner's: a policy's inference option is not one of them
     config = EvalConfig.of(suite, "expert", tmp_path / "r", policy_options=(("n_action_steps", 1),))
-    with pytest.raises(
-        KitbenchError, match="need a lerobot:<checkpoint> or teleop:<device> policy; 'expert' has no settings"
-    ):
+    with pytest.raises(KitbenchError, match="unknown expert option 'n_action_steps' for LiftPegUprightPlanner"):
         run_eval(config, progress=False)
     assert not (tmp_path / "r").exists()
 

@@ -70,8 +70,8 @@ class KitbenchEnv(gym.Wrapper):
     def has_expert(self) -> bool:
         return self._core.has_expert()
 
-    def make_expert(self) -> Any:
-        return self._core.make_expert()
+    def make_expert(self, options: dict[str, Any] | None = None) -> Any:
+        return self._core.make_expert(options)
 
     @property
     def scene(self) -> sapien.Scene:

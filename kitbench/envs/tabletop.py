@@ -245,11 +245,12 @@ class TabletopEnv(gym.Env, abc.ABC):
         plain values for dataset metadata and evaluation reports."""
         return {}
 
-    def make_expert(self) -> Any:
+    def make_expert(self, options: dict[str, Any] | None = None) -> Any:
         """The task's scripted expert for this env (planning `pd_joint_pos` targets: `reset(obs, info)`,
-        `act(obs)`, `phase`, `tcp_target`), built from `expert`; None when the task has none."""
+        `act(obs)`, `phase`, `tcp_target`), built from `expert` with its config's fields in `options` replaced;
+        None when the task has none."""
         expert = type(self).expert_class(self.robot_uid)
-        return None if expert is None else expert(self)
+        return None if expert is None else expert(self, expert.configured(self.robot_uid, options))
 
     @classmethod
     def expert_class(cls, robot_uid: str | None = None) -> Any:

@@ -34,7 +34,7 @@ class ScoredPolicy:
     # Who is scored: expert, random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint>.
     policy: str = setting("expert")
     # Set a lerobot checkpoint's config field for this run (repeatable), e.g. temporal_ensemble_coeff=0.01,
-    # n_action_steps=5, num_inference_steps=10; the report lists them.
+    # n_action_steps=5, num_inference_steps=10, or the expert's planner's (close_steps=8); the report lists them.
     policy_options: tuple[tuple[str, object], ...] = setting(
         (), flag="--policy-option", repeat=True, parse=parse_option, metavar="KEY=VALUE"
     )

@@ -295,6 +295,7 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
         obs_mode=suite.obs_mode,
         control_mode=suite.control_mode,
         policy=policy,
+        expert_options=(dict(config.policy.policy_options) or None) if policy == "expert" else None,
         settle_steps=suite.settle_steps,
         reward_mode=suite.reward_mode,
         robot=robot,

@@ -8,14 +8,16 @@ transition table from one phase to the next (the actor it handles is the task's 
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from kitbench.control.controllers import JOINT_DELTA_MODES, MEASURED_DELTA_MODES
 from kitbench.control.kinematics import ArmKinematics
+from kitbench.errors import KitbenchError
 from kitbench.planning.ik import ArmIK, TimedPath
 from kitbench.planning.phases import OPEN, PhaseSequencer, Step, hold
 from kitbench.planning.poses import pose_matrix
@@ -78,6 +80,29 @@ class PhasePlanner(ABC):
         """The config used for `robot_uid` when none is given: `default_config()`, unless a planner tunes its
         motion per robot."""
         return cls.default_config()
+
+    @classmethod
+    def configured(cls, robot_uid: str, options: dict[str, Any] | None = None):
+        """`robot_config(robot_uid)` with the fields named in `options` replaced (a recipe's or `--policy-option`'s
+        expert settings, e.g. `close_steps=6`); an unknown field or a value of the wrong type is one line naming
+        the valid fields."""
+        config = cls.robot_config(robot_uid)
+        if not options:
+            return config
+        fields = {f.name: f for f in dataclasses.fields(config)}
+        for key, value in options.items():
+            if key not in fields:
+                raise KitbenchError(
+                    f"unknown expert option {key!r} for {cls.__name__}; valid choices: {', '.join(fields)}"
+                )
+            current = getattr(config, key)
+            if not _same_kind(current, value):
+                raise KitbenchError(
+                    f"expert option {key}={value!r} for {cls.__name__} must be {_kind_name(current)} "
+                    f"like its default {current!r}"
+                )
+        floats = {k for k, v in options.items() if isinstance(getattr(config, k), float) and v is not None}
+        return dataclasses.replace(config, **{k: float(v) if k in floats else v for k, v in options.items()})
 
     def target_actor(self):
         """The actor the expert manipulates: the grasp checks and the object pose measured between phases read
@@ -144,3 +169,21 @@ class PhasePlanner(ABC):
 
 
 __all__ = ["PhasePlanner"]
+
+
+def _same_kind(current: Any, value: Any) -> bool:
+    """Whether `value` may replace a config field whose default is `current` (an int reads as a float; None
+    fields take a number or None)."""
+    if isinstance(current, bool) or isinstance(value, bool):
+        return isinstance(current, bool) and isinstance(value, bool)
+    if current is None or value is None:
+        return value is None or isinstance(value, int | float)
+    if isinstance(current, float):
+        return isinstance(value, int | float)
+    return type(value) is type(current)
+
+
+def _kind_name(current: Any) -> str:
+    if current is None:
+        return "a number or null"
+    return {bool: "true or false", int: "an integer", float: "a number"}.get(type(current), type(current).__name__)

@@ -11,29 +11,35 @@ from kitbench.policies.registry import policy_source
 from kitbench.registration import TASKS
 
 
-def check_has_expert(env) -> None:
-    """Refuse a task that declares no expert, naming those that do."""
+def check_has_expert(env, options: dict[str, Any] | None = None) -> None:
+    """Refuse a task that declares no expert, naming those that do, and `options` its expert's config lacks."""
     env = as_kitbench(env)
     if not env.has_expert():
         with_expert = [name for name, entry in TASKS.items() if entry.env_class.has_expert()]
         raise KitbenchError(
             f"task {env.task_id} has no expert planner; tasks with an expert: {', '.join(with_expert) or '(none)'}"
         )
+    if options:
+        TASKS[env.task_id].env_class.expert_class(env.robot_uid).configured(env.robot_uid, options)
 
 
 class ExpertPolicy:
-    """Runs the task's planner (which plans joint-position targets) and expresses each target in the env's mode."""
+    """Runs the task's planner (which plans joint-position targets) and expresses each target in the env's mode.
+
+    `options` replace fields of the planner's config (`--policy-option close_steps=6`): demonstrations shaped for
+    a learner, e.g. a longer still grasp that a policy from pixels can see coming."""
 
     name = "expert"
 
-    def __init__(self):
+    def __init__(self, options: dict[str, Any] | None = None):
         self.planner: Any = None  # the task's expert, built at each reset
-        self._env = None
+        self.options = dict(options or {})
+        self._env: Any = None
 
     def reset(self, env, seed, obs, info):
-        check_has_expert(env)
+        check_has_expert(env, self.options)
         self._env = as_kitbench(env)
-        self.planner = self._env.make_expert()
+        self.planner = self._env.make_expert(self.options)
         self.planner.reset(obs, info)
 
     def act(self, obs):
@@ -49,6 +55,6 @@ class ExpertPolicy:
         return self.planner.tcp_target if self.planner is not None else None
 
 
-@policy_source("expert")
+@policy_source("expert", takes_options=True)
 def _expert(argument: str | None, device: str, options: dict) -> ExpertPolicy:
-    return ExpertPolicy()
+    return ExpertPolicy(options)

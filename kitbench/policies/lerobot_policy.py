@@ -158,6 +158,7 @@ class LeRobotPolicy:
         self.device = device
         self._torch = torch
         self.name = f"lerobot:{checkpoint}"
+        self.path = path  # the pretrained_model folder
         self.control_mode = trained_control_mode(path)
         self.robot = trained_setting(path, "robot")
         self.depth_unit = trained_depth_unit(path)

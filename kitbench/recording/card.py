@@ -151,6 +151,9 @@ def record_command(recording: RecordingInfo, episodes: int) -> str:
             flags += [flag_of(leaf), ",".join(map(str, value))]
         elif value is not False:
             flags += [flag_of(leaf), str(value)]
+    if not recording.source:
+        for key, value in (recording.expert_options or {}).items():
+            flags += ["--policy-option", f"{key}={json.dumps(value)}"]
     return shlex.join([*flags, "--out", "<folder>"])
 
 
@@ -185,6 +188,9 @@ def card_text(root: Path) -> str:
     if is_teleop(recording.policy):
         device = recording.policy.partition(":")[2]
         made = [f"a person at the controls, with LeRobot's `{device}` teleoperator (policy `{recording.policy}`)"]
+    if recording.expert_options:
+        settings = ", ".join(f"`{k}={json.dumps(v)}`" for k, v in recording.expert_options.items())
+        made.append(f"the expert's settings {settings} (its planner's defaults otherwise)")
     if recording.source:
         made.append(f"converted from `{recording.source}` (its executed actions replayed from each seed)")
     if recording.label:

@@ -66,8 +66,8 @@ class PolicySettings:
     # Who acts: expert, random, zero, replay:<dataset>[:episode], lerobot:<checkpoint> (its rollouts; with
     # --only-success its successes) or teleop:<device> (a person with one of LeRobot's teleoperators).
     policy: str = setting("expert")
-    # Set a lerobot checkpoint's config field, or a teleoperator's (port=/dev/ttyACM0, id=my_leader), for this run
-    # (repeatable).
+    # Set a field of the expert's planner config (close_steps=8), a lerobot checkpoint's config, or a
+    # teleoperator's (port=/dev/ttyACM0, id=my_leader), for this run (repeatable).
     policy_options: tuple[tuple[str, object], ...] = setting(
         (), flag="--policy-option", repeat=True, parse=parse_option, metavar="KEY=VALUE"
     )
@@ -187,6 +187,7 @@ class RecordConfig:
             camera_size=self.env.camera_size if self.env.obs_mode != "state" else None,
             rgb_storage=self.output.rgb_storage,
             label=self.policy.label,
+            expert_options=(dict(self.policy.policy_options) or None) if self.policy.policy == "expert" else None,
             source=None if self.source is None else str(self.source),
             kitbench_version=kitbench.__version__,
             repo_id=self.dataset_repo_id,
@@ -204,10 +205,23 @@ def load_recipe(path: Path, **overrides: Any) -> RecordConfig:
     `overrides` win."""
     path = Path(path)
     data = read_settings(path, "recipe", RECIPE_TABLE, RECIPE_KEYS)
+    if "policy_options" in data:
+        data["policy_options"] = _recipe_options(data["policy_options"], path)
     for key in REQUIRED:
         if key not in data and overrides.get(key) is None:
             raise KitbenchError(f"recipe {path}: missing required key {key!r}")
     return RecordConfig.of(**declare.resolve(("recipe", data), ("command line", overrides)).values)
+
+
+def _recipe_options(value: Any, path: Path) -> tuple[tuple[str, object], ...]:
+    """A recipe's `policy_options`: a table (`{close_steps = 8}`) or a list of `"KEY=VALUE"` as on the command line."""
+    if isinstance(value, dict):
+        return tuple(value.items())
+    if isinstance(value, list) and all(isinstance(v, str) for v in value):
+        return tuple(parse_option(v) for v in value)
+    raise KitbenchError(
+        f'recipe {path}: policy_options is {value!r}; give a table ({{close_steps = 8}}) or a list of "KEY=VALUE"'
+    )
 
 
 def validate(config: RecordConfig) -> None:
@@ -256,7 +270,7 @@ def validate(config: RecordConfig) -> None:
         if config.policy.policy == "expert" or config.policy.label == "expert":
             from kitbench.policies.expert import check_has_expert
 
-            check_has_expert(env)
+            check_has_expert(env, dict(config.policy.policy_options) if config.policy.policy == "expert" else None)
         _check_policy_fits(config, policy, env)
         del policy
     finally:

@@ -173,6 +173,7 @@ def convert_config(source_root: Path, out: Path, **settings):
         "out": Path(out),
         "seed": min(source.seeds),
         "policy": info.policy,
+        "policy_options": tuple((info.expert_options or {}).items()),
         "source": Path(source_root),
     }
     return RecordConfig.of(**resolve(("source", base), ("command line", settings), ("conversion", fixed)).values)

@@ -1,0 +1,118 @@
+"""The expert's settings (`--policy-option KEY=VALUE` / a recipe's `policy_options` with `--policy expert`): fields of
+its planner's config, checked before anything is written, kept in the recording's settings as part of what a resume
+must share, and in the command its card prints."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+
+import kitbench  # noqa: F401  (registers the tasks)
+from kitbench.errors import KitbenchError
+from kitbench.policies.expert import ExpertPolicy
+from kitbench.recording.config import load_recipe
+from kitbench.recording.convert import convert_config
+from kitbench.recording.recorder import RecordConfig, record
+from tests.lerobot_cli import BIN, OFFLINE
+from tests.test_recording import _columns
+
+AK = "AssemblingKits-v1"
+
+
+def _settings(root: Path) -> dict:
+    return json.loads((root / "meta/kitbench_recording.json").read_text())
+
+
+def _grasp_run(options: dict | None, seed: int = 3) -> tuple[list[str], bool]:
+    """The expert's phase at each step of one AssemblingKits episode, and whether it succeeded."""
+    env = gym.make(f"kitbench/{AK}", obs_mode="state", control_mode="pd_joint_pos")
+    try:
+        obs, info = env.reset(seed=seed)
+        expert = ExpertPolicy(options)
+        expert.reset(env, seed, obs, info)
+        phases, success = [], False
+        for _ in range(env.unwrapped.max_episode_steps):
+            obs, _, terminated, truncated, info = env.step(expert.act(obs))
+            phases.append(expert.phase)
+            success = success or bool(info["success"])
+            if terminated or truncated or success:
+                break
+        return phases, success
+    finally:
+        env.close()
+
+
+def test_a_longer_close_holds_the_hand_still_for_that_many_steps_and_still_inserts():
+    default, default_success = _grasp_run(None)
+    longer, longer_success = _grasp_run({"close_steps": 8})
+    assert default_success and longer_success
+    assert default.count("grasp") == 2 and longer.count("grasp") == 8
+    # everything before the grasp is the same plan
+    first = default.index("grasp")
+    assert longer[:first] == default[:first] and longer.index("grasp") == first
+
+
+@pytest.mark.parametrize(
+    ("options", "needle"),
+    [
+        ((("close_step", 8),), "unknown expert option 'close_step' for AssemblingKitsPlanner; valid choices: "),
+        ((("close_steps", 2.5),), "expert option close_steps=2.5 for AssemblingKitsPlanner must be an integer"),
+        ((("level_held", 1),), "expert option level_held=1 for AssemblingKitsPlanner must be true or false"),
+        ((("grasp_height", "low"),), "expert option grasp_height='low' for AssemblingKitsPlanner must be a number"),
+    ],
+)
+def test_a_bad_expert_option_is_one_line_and_writes_nothing(tmp_path, options, needle):
+    out = tmp_path / "never"
+    with pytest.raises(KitbenchError) as error:
+        record(RecordConfig.of(AK, 1, out, policy_options=options, mcap=False), progress=False)
+    assert needle in str(error.value) and "\n" not in str(error.value)
+    assert not out.exists()
+
+
+def test_options_are_kept_with_the_recording_a_resume_must_share_them_and_the_card_makes_it_again(
+    tmp_path, needs_vulkan
+):
+    out = tmp_path / "ak"
+    options = (("close_steps", 8),)
+    record(RecordConfig.of(AK, 1, out, control_mode="pd_joint_pos", policy_options=options, mcap=False), False)
+    assert _settings(out)["expert_options"] == {"close_steps": 8}
+    text = (out / "README.md").read_text()
+    assert "the expert's settings `close_steps=8`" in text
+    command = text.split("- Made again by: `")[1].split("`")[0]
+    assert "--policy-option close_steps=8" in command
+    again = tmp_path / "again"
+    run = subprocess.run(
+        [str(BIN / "kitbench"), *command.split()[1:-1], str(again), "--no-mcap"],
+        capture_output=True,
+        text=True,
+        env=OFFLINE,
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert _settings(again)["expert_options"] == {"close_steps": 8}
+    assert (_columns(again)["action"] == _columns(out)["action"]).all()
+    # the other expert cannot continue it: its episodes would differ from what their seeds say
+    resumed = RecordConfig.of(AK, 2, out, control_mode="pd_joint_pos", resume=True, mcap=False)
+    with pytest.raises(ValueError, match=r"expert_options: recorded \{'close_steps': 8\}, asked None"):
+        record(resumed, progress=False)
+    # a conversion is made by the same expert
+    converted = tmp_path / "converted"
+    record(convert_config(out, converted, obs_mode="rgb", camera_size="32x32"), progress=False)
+    assert _settings(converted)["expert_options"] == {"close_steps": 8}
+
+
+def test_a_recipe_gives_options_as_a_table_or_as_command_line_pairs(tmp_path):
+    recipe = tmp_path / "r.toml"
+    base = f'task = "{AK}"\nepisodes = 1\nout = "o"\n'
+    configs = []
+    for form in ("{close_steps = 8, grasp_height = 0.02}", '["close_steps=8", "grasp_height=0.02"]'):
+        recipe.write_text(base + f"policy_options = {form}\n")
+        configs.append(load_recipe(recipe))
+    assert configs[0].policy.policy_options == configs[1].policy.policy_options
+    assert dict(configs[0].policy.policy_options) == {"close_steps": 8, "grasp_height": 0.02}
+    recipe.write_text(base + "policy_options = 5\n")
+    with pytest.raises(KitbenchError, match=r"policy_options is 5; give a table \(\{close_steps = 8\}\)"):
+        load_recipe(recipe)
