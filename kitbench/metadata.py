@@ -242,6 +242,12 @@ _SETTING_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
+def expert_options(policy: str, options) -> dict[str, Any] | None:
+    """What a recording keeps as `expert_options`: the `--policy-option` pairs when the expert acts (they are its
+    planner's settings), else None (a checkpoint's or a teleoperator's options are not the expert's)."""
+    return (dict(options) or None) if policy == "expert" else None
+
+
 def episodes_digest(data: bytes) -> str:
     """The digest of an episode file's bytes, as the settings file keeps it."""
     return hashlib.sha256(data).hexdigest()

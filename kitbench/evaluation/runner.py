@@ -271,7 +271,7 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
     import shlex
 
     import kitbench
-    from kitbench.metadata import RecordingInfo
+    from kitbench.metadata import RecordingInfo, expert_options
     from kitbench.recording.features import dataset_features
     from kitbench.recording.session import RecordingSession
 
@@ -295,7 +295,7 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
         obs_mode=suite.obs_mode,
         control_mode=suite.control_mode,
         policy=policy,
-        expert_options=(dict(config.policy.policy_options) or None) if policy == "expert" else None,
+        expert_options=expert_options(policy, config.policy.policy_options),
         settle_steps=suite.settle_steps,
         reward_mode=suite.reward_mode,
         robot=robot,

@@ -17,7 +17,7 @@ from kitbench.env_settings import EnvSettings
 from kitbench.envs.modes import camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
-from kitbench.metadata import RECORDING_FILE, RecordingInfo
+from kitbench.metadata import RECORDING_FILE, RecordingInfo, expert_options
 from kitbench.policies.lerobot_policy import parse_option
 from kitbench.recording.features import RGB_STORAGES
 from kitbench.recording.layout import RETIRED_SUFFIX, SHARDS_DIR, beside, journal_root, last_commit
@@ -187,7 +187,7 @@ class RecordConfig:
             camera_size=self.env.camera_size if self.env.obs_mode != "state" else None,
             rgb_storage=self.output.rgb_storage,
             label=self.policy.label,
-            expert_options=(dict(self.policy.policy_options) or None) if self.policy.policy == "expert" else None,
+            expert_options=expert_options(self.policy.policy, self.policy.policy_options),
             source=None if self.source is None else str(self.source),
             kitbench_version=kitbench.__version__,
             repo_id=self.dataset_repo_id,
@@ -270,7 +270,7 @@ def validate(config: RecordConfig) -> None:
         if config.policy.policy == "expert" or config.policy.label == "expert":
             from kitbench.policies.expert import check_has_expert
 
-            check_has_expert(env, dict(config.policy.policy_options) if config.policy.policy == "expert" else None)
+            check_has_expert(env, expert_options(config.policy.policy, config.policy.policy_options))
         _check_policy_fits(config, policy, env)
         del policy
     finally:
