@@ -73,7 +73,7 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int], expert_options: di
     angular (deg) distances between where the policy's action and the expert's lead, the differences of their
     gripper commands and the expert's step lengths (m). The expert runs with `expert_options`, by default those
     of the expert that recorded the checkpoint's training data (`close_steps=8`: the states it learned from)."""
-    from kitbench.env_settings import canonical_size, parse_size
+    from kitbench.env_settings import PolicyEnvSettings
     from kitbench.policies.expert import ExpertPolicy
     from kitbench.policies.lerobot_policy import LeRobotPolicy, trained_setting
     from kitbench.registration import make_env
@@ -90,13 +90,16 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int], expert_options: di
         policy = LeRobotPolicy(checkpoint, options={"n_action_steps": 1})
         predict = policy.act
     needs = policy.requirements()
-    size = canonical_size(needs.get("camera_size"))  # the cameras at the size the policy was trained at
+    # the cameras at the size and where they stood when the policy was trained
+    cameras = PolicyEnvSettings(
+        task=task, robot=needs.get("robot"), camera_size=needs.get("camera_size"), camera_view=needs.get("camera_view")
+    )
     env = make_env(
         task,
         obs_mode=needs.get("obs_mode", "state"),
         control_mode=needs.get("control_mode", "pd_joint_pos"),
         robot_uids=needs.get("robot"),
-        **({"sensor_configs": dict(zip(("width", "height"), parse_size(size), strict=True))} if size else {}),
+        sensor_configs=cameras.sensor_configs,
     )
     u = env.unwrapped
     n_arm = u.action_space.shape[0] - 1

@@ -125,8 +125,8 @@ class ConvertCommand:
 
 
 # What a conversion may set; the rest is its source's (task, robot, seeds, reward, settling).
-CONVERT_FLAGS = ("obs_mode", "control_mode", "pointcloud_points", "camera_size", "rgb_storage", "workers",
-                 "executor", "ray_address", "resume", "overwrite", "mcap", "commit_interval")  # fmt: skip
+CONVERT_FLAGS = ("obs_mode", "control_mode", "pointcloud_points", "camera_size", "camera_view", "rgb_storage",
+                 "workers", "executor", "ray_address", "resume", "overwrite", "mcap", "commit_interval")  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -95,18 +95,50 @@ class PolicyEnvSettings(TaskSettings):
     # Every observation camera's image, WIDTHxHEIGHT pixels (one number: a square), each camera keeping its field of
     # view (default: the task's and robot's own, 128x128). A policy is scored at the size it was trained at.
     camera_size: str | None = setting(None, check=optional(_size), metavar="WxH")
+    # Another framing of the task's own cameras, by the name the task declares it under (AssemblingKits: board, its
+    # base camera in front of the board, framing the board and the shape's spawn area); default: the task's
+    # cameras as ManiSkill frames them. A policy is scored in the framing it was trained in.
+    camera_view: str | None = setting(None, metavar="NAME")
 
     def __post_init__(self) -> None:
         super().__post_init__()
         self.camera_size = canonical_size(self.camera_size)
 
+    def check_camera_view(self) -> None:
+        """The view is one the task declares, of cameras the robot leaves the task (the SO-101 brings its own)."""
+        if self.camera_view is None or self.task not in TASKS:
+            return
+        env_class = TASKS[self.task].env_class
+        views = env_class.camera_views
+        if self.camera_view not in views:
+            raise KitbenchError(
+                f"camera_view {self.camera_view!r} is not one of {self.task}'s; valid choices: "
+                f"{', '.join(views) or '(none: the task declares no other view)'}"
+            )
+        from kitbench.robots import ROBOTS
+
+        if not ROBOTS[self.robot_uid].task_cameras:
+            raise KitbenchError(
+                f"camera_view {self.camera_view!r} frames {self.task}'s own cameras, which robot {self.robot_uid} "
+                "replaces with its own; drop --camera-view"
+            )
+
     @property
-    def sensor_configs(self) -> dict[str, int] | None:
-        """`camera_size` as the env's (ManiSkill's) `sensor_configs`."""
-        if self.camera_size is None:
-            return None
-        width, height = parse_size(self.camera_size)
-        return {"width": width, "height": height}
+    def sensor_configs(self) -> dict | None:
+        """`camera_size` and `camera_view` as the env's (ManiSkill's) `sensor_configs`."""
+        configs: dict = {}
+        if self.camera_size is not None:
+            width, height = parse_size(self.camera_size)
+            configs.update(width=width, height=height)
+        if self.camera_view is not None:
+            self.check_camera_view()
+            configs.update(
+                {
+                    camera: dict(view)
+                    for camera, view in TASKS[self.task_id].env_class.camera_views[self.camera_view].items()
+                }
+            )
+        return configs or None
 
 
 @dataclass

@@ -48,6 +48,7 @@ IDENTITY = (
     "robot",
     "pointcloud_points",
     "camera_size",
+    "camera_view",
     "rgb_storage",
     "label",
     "expert_options",
@@ -74,6 +75,7 @@ class RecordingInfo:
     robot: str | None = None  # None: the task's default robot
     pointcloud_points: int | None = None  # kept for obs_mode pointcloud only
     camera_size: str | None = None  # "WxH" when not the cameras' own size
+    camera_view: str | None = None  # the task's named framing of its cameras; None: its own (ManiSkill's)
     rgb_storage: str = "video"
     label: str | None = None  # who labelled each frame's action (DAgger); None: the acting policy
     expert_options: dict[str, Any] | None = None  # the expert's config fields a recording replaced (close_steps=6)
@@ -144,6 +146,7 @@ class RecordingInfo:
         optional = (
             "pointcloud_points",
             "camera_size",
+            "camera_view",
             "label",
             "expert_options",
             "source",
@@ -227,6 +230,7 @@ _SETTING_TYPES: dict[str, tuple[type, ...]] = {
     "robot": (str, _NONE),
     "pointcloud_points": (int, _NONE),
     "camera_size": (str, _NONE),
+    "camera_view": (str, _NONE),
     "rgb_storage": (str,),
     "label": (str, _NONE),
     "expert_options": (dict, _NONE),

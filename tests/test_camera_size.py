@@ -44,7 +44,7 @@ def test_the_env_renders_at_the_size_asked_with_the_same_field_of_view(needs_vul
         ({"width": 4}, "8 to 4096"),
         ({"width": 64.0}, "whole number"),
         ({"base_kamera": {"width": 64}}, "valid keys: width, height, base_camera"),
-        ({"base_camera": {"fov": 1}}, "must set only width and height"),
+        ({"base_camera": {"depth": 1}}, "may set only width, height, fov, pose"),
     ],
 )
 def test_bad_sensor_configs_are_one_line(configs, message):
@@ -124,7 +124,7 @@ def test_a_lerobot_policy_requires_the_size_of_its_image_features():
     from kitbench.policies.lerobot_policy import LeRobotPolicy
 
     policy = LeRobotPolicy.__new__(LeRobotPolicy)
-    policy.control_mode = policy.robot = None
+    policy.control_mode = policy.robot = policy.camera_view = None
     policy.config = SimpleNamespace(
         input_features={
             "observation.state": PolicyFeature(FeatureType.STATE, (8,)),

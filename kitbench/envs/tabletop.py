@@ -37,7 +37,7 @@ from kitbench.errors import KitbenchError, check_choice
 from kitbench.perturbations import Perturbations
 from kitbench.robots import ROBOTS, Robot, RobotSpec
 from kitbench.robots.robot import GROUND_FREE_BIT
-from kitbench.sim.cameras import Camera, CameraSpec, check_sensor_configs, sized
+from kitbench.sim.cameras import Camera, CameraSpec, check_sensor_configs, configured
 from kitbench.sim.scene import SimConfig, add_table_and_ground, create_scene
 
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -86,6 +86,9 @@ class TabletopEnv(gym.Env, abc.ABC):
     # Whether `_load_task` builds the task's object to `object_scale` (and `evaluate` measures it as built): the
     # `object_scale` perturbation is refused by tasks that do not.
     supports_object_scale: ClassVar[bool] = False
+    # Other framings of the task's own cameras, by name, that a recording may choose (`camera_view`): ManiSkill
+    # `sensor_configs` entries, {camera: {"pose": (x, y, z, qw, qx, qy, qz), "fov": radians}}.
+    camera_views: ClassVar[dict[str, dict[str, dict[str, Any]]]] = {}
     # The task's scripted expert: its class, or "module:Class" (as gymnasium's entry points), which keeps the
     # planner's module, which needs the task's geometry, from being imported by the task's own module; or a dict
     # of them by robot uid, for a task whose robots move too differently to share one.
@@ -112,9 +115,9 @@ class TabletopEnv(gym.Env, abc.ABC):
         sensor_configs: Mapping[str, Any] | None = None,
     ):
         """`pointcloud_range`: in obs_mode pointcloud, the depth (m, along each camera's viewing axis) beyond which
-        a point is dropped from the cloud (its w set to 0). `sensor_configs`: the observation cameras' image size,
-        as ManiSkill takes it: `{"width": 64, "height": 64}` for every camera, or per camera
-        `{"base_camera": {"width": 64, "height": 64}}` (each camera keeps its field of view)."""
+        a point is dropped from the cloud (its w set to 0). `sensor_configs`: the observation cameras' settings
+        as ManiSkill takes them: `{"width": 64, "height": 64}` sizes every camera (each keeps its field of view);
+        per camera, `{"base_camera": {"width": 64, "height": 64, "fov": 0.8, "pose": (x, y, z, qw, qx, qy, qz)}}`."""
         robot_uids = robot_uids or self.supported_robots[0]
         check_choice("obs_mode", obs_mode, OBS_MODES)
         check_choice("control_mode", control_mode, CONTROL_MODES)
@@ -533,8 +536,8 @@ class TabletopEnv(gym.Env, abc.ABC):
 
     def camera_specs(self) -> tuple[CameraSpec, ...]:
         """Every camera an image observation has (the task's, then the robot's), whatever this env's obs mode, at
-        the size `sensor_configs` asks."""
-        return tuple(sized(spec, self.sensor_configs) for spec in self._camera_specs())
+        the size, field of view and pose `sensor_configs` asks."""
+        return tuple(configured(spec, self.sensor_configs) for spec in self._camera_specs())
 
     def _camera_specs(self) -> tuple[CameraSpec, ...]:
         task = self._sensor_cameras() if self._robot_spec.task_cameras else []

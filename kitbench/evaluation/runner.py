@@ -82,6 +82,17 @@ def fit_suite_to_policy(suite: Suite, policy, origins: dict[str, str]) -> Suite:
                 f"{suite.camera_size}; evaluate it with --camera-size {trained}"
             )
         changes["camera_size"] = canonical_size(trained)
+    view = needs.get("camera_view")
+    if view != suite.camera_view and "obs_mode" in needs:  # a policy reading the cameras
+        # cameras where they stood in training, or no score: a moved camera is another input, not a harder test
+        if suite.camera_view is not None:
+            learned = f"camera view {view}" if view else "the task's own camera views"
+            fix = f"evaluate it with --camera-view {view}" if view else "drop --camera-view"
+            raise KitbenchError(
+                f"policy {policy.name} was trained on {learned} but this evaluation renders camera view "
+                f"{suite.camera_view}; {fix}"
+            )
+        changes["camera_view"] = view
     return replace(suite, **changes) if changes else suite
 
 
@@ -286,6 +297,11 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
     flags = ["--suite", suite.source] if suite.source else ["--task", suite.task, "--seed", str(suite.seeds[0])]
     flags += ["--episodes", str(len(suite.seeds)), "--policy", policy, "--obs-mode", suite.obs_mode]
     flags += ["--control-mode", suite.control_mode, "--robot", robot, "--settle-steps", str(suite.settle_steps)]
+    cameras = suite.obs_mode != "state"  # the size and framing the frames' images were rendered in
+    if cameras and suite.camera_size is not None:
+        flags += ["--camera-size", suite.camera_size]
+    if cameras and suite.camera_view is not None:
+        flags += ["--camera-view", suite.camera_view]
     for key, value in config.policy.policy_options:
         flags += ["--policy-option", f"{key}={value}"]
     info = RecordingInfo(
@@ -299,6 +315,8 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
         settle_steps=suite.settle_steps,
         reward_mode=suite.reward_mode,
         robot=robot,
+        camera_size=suite.camera_size if cameras else None,
+        camera_view=suite.camera_view if cameras else None,
         kitbench_version=kitbench.__version__,
         repo_id=f"kitbench/{suite.task}",
         fps=fps,

@@ -62,6 +62,7 @@ class Suite(EnvSettings, SettleSettings):
         try:
             declare.validate(self)
             self.check_robot()
+            self.check_camera_view()
         except KitbenchError as exc:
             raise KitbenchError(f"{self._where()}{exc}") from None
         self.seeds = tuple(self.seeds)

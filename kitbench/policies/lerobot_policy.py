@@ -161,6 +161,7 @@ class LeRobotPolicy:
         self.path = path  # the pretrained_model folder
         self.control_mode = trained_control_mode(path)
         self.robot = trained_setting(path, "robot")
+        self.camera_view = trained_setting(path, "camera_view")
         self.depth_unit = trained_depth_unit(path)
         self._sampler: PointSampler | None = None
 
@@ -172,7 +173,7 @@ class LeRobotPolicy:
 
     def requirements(self) -> dict:
         """What the env must provide: the obs mode that gives the policy's inputs (cameras' textures, a point
-        cloud), its training control mode and robot."""
+        cloud), its training control mode and robot, its cameras' size and framing."""
         needs = {}
         obs_mode = obs_mode_for(self.config.input_features)
         if obs_mode != "state":
@@ -185,6 +186,8 @@ class LeRobotPolicy:
         if len(sizes) == 1:  # the cameras' size it was trained at
             width, height = sizes.pop()
             needs["camera_size"] = f"{width}x{height}"
+        if obs_mode != "state" and self.camera_view is not None:  # the framing of the cameras it learned from
+            needs["camera_view"] = self.camera_view
         return needs
 
     def check(self, env) -> None:

@@ -185,6 +185,7 @@ class RecordConfig:
             robot=self.env.robot,
             pointcloud_points=self.env.pointcloud_points if self.env.obs_mode == "pointcloud" else None,
             camera_size=self.env.camera_size if self.env.obs_mode != "state" else None,
+            camera_view=self.env.camera_view if self.env.obs_mode != "state" else None,
             rgb_storage=self.output.rgb_storage,
             label=self.policy.label,
             expert_options=expert_options(self.policy.policy, self.policy.policy_options),
@@ -232,6 +233,7 @@ def validate(config: RecordConfig) -> None:
     task_entry(config.task)
     declare.validate(config)
     config.env.check_robot()
+    config.env.check_camera_view()
     demo = config.demo
     if config.policy.label is not None and config.policy.policy == config.policy.label:
         raise KitbenchError(

@@ -166,6 +166,7 @@ def convert_config(source_root: Path, out: Path, **settings):
         "repo_id": info.repo_id,
         "rgb_storage": info.rgb_storage,
         "camera_size": info.camera_size,
+        "camera_view": info.camera_view,
     }
     fixed = {
         "task": info.task,

@@ -10,6 +10,7 @@ camera on 2 CPU cores, and each texture read 0.2 ms more.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import sapien
@@ -44,6 +45,13 @@ class CameraSpec:
     def looking_at(cls, name, eye, target, width, height, fov, near=0.01, far=100.0) -> CameraSpec:
         p, q = look_at(eye, target)
         return cls(name, width, height, fov, tuple(p), tuple(q), near, far)
+
+
+def view(eye, target, fov: float) -> dict[str, Any]:
+    """A fixed camera at `eye` looking at `target` with a vertical field of view `fov` (radians), as the
+    `sensor_configs` entry that moves a task's camera there."""
+    p, q = look_at(eye, target)
+    return {"pose": tuple(float(x) for x in (*p, *q)), "fov": float(fov)}
 
 
 class Camera:
@@ -104,12 +112,37 @@ class Camera:
 
 
 SIZE_KEYS = ("width", "height")
+# What `sensor_configs` may set of one camera, as ManiSkill's CameraConfig names them: its image size, vertical field
+# of view (radians) and pose (x, y, z, qw, qx, qy, qz: in the world for a fixed camera, on its link for a mounted one).
+CAMERA_KEYS = (*SIZE_KEYS, "fov", "pose")
 
 
-def check_sensor_configs(configs, cameras: list[str]) -> dict[str, dict[str, int]]:
-    """ManiSkill's `sensor_configs` (image sizes only) as {camera: {"width": w, "height": h}}: `{"width": w,
-    "height": h}` applies to every camera, `{camera: {...}}` to one. A bad key or size is one line naming it and
-    the valid choices."""
+def _check_camera_value(key: str, value) -> object:
+    from kitbench.errors import KitbenchError
+
+    if key in SIZE_KEYS:
+        if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= 4096:
+            raise KitbenchError(f"sensor_configs {key} must be a whole number of pixels, 8 to 4096; got {value!r}")
+        return value
+    if key == "fov":
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 < value < np.pi:
+            raise KitbenchError(f"sensor_configs fov must be radians between 0 and pi, got {value!r}")
+        return float(value)
+    if isinstance(value, sapien.Pose):
+        value = (*value.p, *value.q)
+    pose = np.asarray(value, dtype=np.float64) if isinstance(value, list | tuple | np.ndarray) else None
+    if pose is None or pose.shape != (7,) or not np.isfinite(pose).all() or abs(np.linalg.norm(pose[3:]) - 1) > 1e-3:
+        raise KitbenchError(
+            f"sensor_configs pose must be x, y, z, qw, qx, qy, qz with a unit quaternion (or a sapien.Pose), "
+            f"got {value!r}"
+        )
+    return tuple(float(x) for x in pose)
+
+
+def check_sensor_configs(configs, cameras: list[str]) -> dict[str, dict[str, Any]]:
+    """ManiSkill's `sensor_configs` as {camera: {key: value}}: `{"width": w, "height": h}` sizes every camera,
+    `{camera: {...}}` sets one camera's `CAMERA_KEYS`. A bad key or value is one line naming it and the valid
+    choices."""
     from kitbench.errors import KitbenchError
 
     if configs is None:
@@ -118,25 +151,31 @@ def check_sensor_configs(configs, cameras: list[str]) -> dict[str, dict[str, int
         raise KitbenchError(f"sensor_configs must be a mapping, got {configs!r}")
     common = {k: v for k, v in configs.items() if k in SIZE_KEYS}
     per_camera = {k: v for k, v in configs.items() if k not in SIZE_KEYS}
-    for name, sizes in per_camera.items():
+    for name, settings in per_camera.items():
         if name not in cameras:
             raise KitbenchError(
                 f"sensor_configs: unknown key {name!r}; valid keys: {', '.join((*SIZE_KEYS, *cameras))}"
             )
-        if not isinstance(sizes, dict) or set(sizes) - set(SIZE_KEYS):
-            raise KitbenchError(f"sensor_configs[{name!r}] must set only {' and '.join(SIZE_KEYS)}, got {sizes!r}")
-    out: dict[str, dict[str, int]] = {}
+        if not isinstance(settings, dict) or set(settings) - set(CAMERA_KEYS):
+            raise KitbenchError(f"sensor_configs[{name!r}] may set only {', '.join(CAMERA_KEYS)}, got {settings!r}")
+    out: dict[str, dict[str, Any]] = {}
     for camera in cameras:
-        sizes = {**common, **per_camera.get(camera, {})}
-        for key, value in sizes.items():
-            if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= 4096:
-                raise KitbenchError(f"sensor_configs {key} must be a whole number of pixels, 8 to 4096; got {value!r}")
-        if sizes:
-            out[camera] = sizes
+        settings = {**common, **per_camera.get(camera, {})}
+        if settings:
+            out[camera] = {key: _check_camera_value(key, value) for key, value in settings.items()}
     return out
 
 
-def sized(spec: CameraSpec, configs: dict[str, dict[str, int]]) -> CameraSpec:
-    """`spec` at the image size `configs` (from `check_sensor_configs`) gives its camera, same field of view."""
-    sizes = configs.get(spec.name, {})
-    return replace(spec, width=sizes.get("width", spec.width), height=sizes.get("height", spec.height))
+def configured(spec: CameraSpec, configs: dict[str, dict[str, Any]]) -> CameraSpec:
+    """`spec` with what `configs` (from `check_sensor_configs`) sets of it: its size (the field of view kept unless
+    set), field of view and pose."""
+    settings = configs.get(spec.name, {})
+    pose = settings.get("pose")
+    return replace(
+        spec,
+        width=settings.get("width", spec.width),
+        height=settings.get("height", spec.height),
+        fov=settings.get("fov", spec.fov),
+        position=spec.position if pose is None else tuple(pose[:3]),
+        quaternion=spec.quaternion if pose is None else tuple(pose[3:]),
+    )

@@ -53,7 +53,7 @@ class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
     '+'-joined) or pointcloud adds what a dataset recorded in that mode holds, under the same names.
     `control_mode` must be the one the training dataset was recorded in.
 
-    `task`, `robot`, `control_mode`, `pointcloud_points` and `camera_size` are kitbench's own settings
+    `task`, `robot`, `control_mode`, `pointcloud_points`, `camera_size` and `camera_view` are kitbench's own settings
     (`kitbench.env_settings`), declared, documented and checked there once. The comment above each field is its
     `--help` text (draccus reads comments, in this class and the ones it inherits from, not this docstring).
     """
@@ -84,6 +84,7 @@ class KitbenchEnvConfig(PolicyEnvSettings, EnvConfig):
         for name, leaf in leaves(PolicyEnvSettings).items():
             leaf.check(getattr(self, name))  # kitbench's own checks of its settings: one line each
         self.check_robot()
+        self.check_camera_view()
         check_choice("obs_type", self.obs_type, OBS_TYPES)
         check_choice("depth_unit", self.depth_unit, ("mm", "m"))
         points = self.pointcloud_points

@@ -1,0 +1,181 @@
+"""A task's named framings of its cameras (`camera_view`, ManiSkill's `sensor_configs` pose and fov in the env): the
+env renders from where the view puts the camera, a recording keeps the view (a resume in another is refused, the
+card's command names it), the env that scores a policy trained on it renders it too, and a policy is never scored
+from cameras that stood elsewhere in training."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import kitbench  # noqa: F401
+from kitbench.env_settings import PolicyEnvSettings
+from kitbench.errors import KitbenchError
+from kitbench.evaluation.runner import fit_suite_to_policy
+from kitbench.evaluation.suite import Suite
+from kitbench.metadata import RecordingInfo
+from kitbench.recording.recorder import RecordConfig, record
+from kitbench.sim.cameras import view
+from kitbench.tasks.assembling_kits import AssemblingKitsEnv
+
+AK, LPU = "AssemblingKits-v1", "LiftPegUpright-v1"
+BOARD = AssemblingKitsEnv.camera_views["board"]["base_camera"]
+
+
+def test_sensor_configs_move_a_camera_and_set_its_field_of_view(needs_vulkan):
+    eye, fov = [0.3, 0.1, 0.5], 0.7
+    env = gym.make(f"kitbench/{LPU}", obs_mode="rgb", sensor_configs={"base_camera": view(eye, [0, 0, 0], fov)})
+    params = env.reset(seed=0)[0]["sensor_param"]["base_camera"]
+    np.testing.assert_allclose(params["cam2world_gl"][:3, 3], eye, atol=1e-6)
+    # OpenGL's camera looks down its -z axis: here at the origin
+    forward = -params["cam2world_gl"][:3, 2]
+    np.testing.assert_allclose(forward, -np.array(eye) / np.linalg.norm(eye), atol=1e-6)
+    assert params["intrinsic_cv"][1, 1] == pytest.approx(64 / math.tan(fov / 2), rel=1e-5)  # 128 px high
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("configs", "message"),
+    [
+        ({"base_camera": {"fov": 3.5}}, "fov must be radians between 0 and pi"),
+        ({"base_camera": {"fov": True}}, "fov must be radians"),
+        ({"base_camera": {"pose": [0, 0, 1]}}, "pose must be x, y, z, qw, qx, qy, qz"),
+        ({"base_camera": {"pose": [0, 0, 1, 2, 0, 0, 0]}}, "unit quaternion"),
+        ({"base_camera": {"zoom": 2}}, "may set only width, height, fov, pose"),
+    ],
+)
+def test_bad_camera_settings_are_one_line(configs, message):
+    with pytest.raises(KitbenchError, match=message) as caught:
+        gym.make(f"kitbench/{LPU}", obs_mode="rgb", sensor_configs=configs)
+    assert "\n" not in str(caught.value)
+
+
+def test_a_view_is_the_tasks_sensor_configs_beside_the_size():
+    settings = PolicyEnvSettings(task=AK, camera_size="64", camera_view="board")
+    assert settings.sensor_configs == {"width": 64, "height": 64, "base_camera": BOARD}
+    assert PolicyEnvSettings(task=AK, camera_view="board").sensor_configs == {"base_camera": BOARD}
+    assert PolicyEnvSettings(task=AK).sensor_configs is None
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"task": AK, "camera_view": "top"}, "'top' is not one of AssemblingKits-v1's; valid choices: board"),
+        ({"task": LPU, "camera_view": "board"}, "valid choices: (none: the task declares no other view)"),
+        ({"task": AK, "robot": "so101", "camera_view": "board"}, "which robot so101 replaces with its own"),
+    ],
+)
+def test_a_view_the_task_or_robot_has_not_is_one_line(settings, message, tmp_path):
+    with pytest.raises(KitbenchError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        PolicyEnvSettings(**settings).check_camera_view()
+    out = tmp_path / "never"
+    with pytest.raises(KitbenchError, match="camera_view"):
+        record(RecordConfig.of(episodes=1, out=out, obs_mode="rgb", **settings), progress=False)
+    assert not out.exists()
+
+
+def test_the_board_view_puts_more_of_the_board_in_the_picture(needs_vulkan):
+    """What the view is for: the board and the shape on several times the pixels of ManiSkill's framing."""
+
+    def pixels(camera_view):
+        sensors = PolicyEnvSettings(task=AK, camera_size="64", camera_view=camera_view).sensor_configs
+        env = gym.make(f"kitbench/{AK}", obs_mode="segmentation", sensor_configs=sensors)
+        names = env.unwrapped.segmentation_id_map
+        ids = {n: [i for i, name in names.items() if name == n] for n in ("kit", "obj_to_place")}
+        counts = []
+        for seed in (1000000, 1000001, 1000002):
+            label = env.reset(seed=seed)[0]["sensor_data"]["base_camera"]["segmentation"][..., 0]
+            counts.append([int(np.isin(label, ids[n]).sum()) for n in ("kit", "obj_to_place")])
+        env.close()
+        return np.array(counts)
+
+    own, board = pixels(None), pixels("board")
+    assert (board > 2 * own).all(), (own, board)
+
+
+def test_a_recording_keeps_its_view(needs_vulkan, tmp_path):
+    out = tmp_path / "ds"
+    config = RecordConfig.of(task=AK, episodes=1, out=out, obs_mode="rgb", camera_size="32", camera_view="board")
+    record(config.replace(mcap=False), progress=False)
+    assert RecordingInfo.read(out).camera_view == "board"
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    frame = LeRobotDataset("kitbench/test", root=out)[0]
+    world_to_cv = frame["observation.sensor_param.base_camera.extrinsic_cv"].numpy().reshape(3, 4)
+    eye = -world_to_cv[:, :3].T @ world_to_cv[:, 3]
+    np.testing.assert_allclose(eye, BOARD["pose"][:3], atol=1e-5)
+    from kitbench.recording.card import card_text
+
+    assert "--camera-view board" in card_text(out)
+    with pytest.raises(KitbenchError, match="camera_view: recorded 'board', asked None"):
+        record(
+            RecordConfig.of(task=AK, episodes=2, out=out, obs_mode="rgb", camera_size="32", resume=True, mcap=False),
+            progress=False,
+        )
+
+
+def _policy(view: str | None, obs_mode: str | None = "rgb"):
+    """What `fit_suite_to_policy` reads of a policy: its name and requirements."""
+    needs = {k: v for k, v in {"obs_mode": obs_mode, "camera_view": view}.items() if v is not None}
+    return SimpleNamespace(name="lerobot:trained", requirements=lambda: needs)
+
+
+def test_the_env_that_scores_a_policy_renders_the_view_it_was_trained_on():
+    suite = Suite(task=AK, seeds=(0,))
+    assert fit_suite_to_policy(suite, _policy("board"), {}).camera_view == "board"
+    assert fit_suite_to_policy(Suite(task=AK, seeds=(0,), camera_view="board"), _policy("board"), {}).camera_view == (
+        "board"
+    )
+    assert fit_suite_to_policy(suite, _policy(None), {}).camera_view is None
+    # a policy that reads no camera is scored wherever the cameras stand
+    assert fit_suite_to_policy(Suite(task=AK, seeds=(0,), camera_view="board"), _policy(None, None), {}).camera_view
+
+
+def test_a_policy_is_never_scored_from_cameras_that_stood_elsewhere():
+    with pytest.raises(KitbenchError) as caught:
+        fit_suite_to_policy(Suite(task=AK, seeds=(0,), camera_view="board"), _policy(None), {})
+    message = str(caught.value)
+    assert "\n" not in message and "trained on the task's own camera views" in message
+    assert message.endswith("drop --camera-view")
+
+
+def test_a_lerobot_policy_requires_the_view_of_its_training_data():
+    from lerobot.configs import FeatureType, PolicyFeature
+
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+
+    policy = LeRobotPolicy.__new__(LeRobotPolicy)
+    policy.control_mode = policy.robot = None
+    policy.camera_view = "board"
+    features = {"observation.state": PolicyFeature(FeatureType.STATE, (8,))}
+    policy.config = SimpleNamespace(input_features=features)
+    assert "camera_view" not in policy.requirements()  # a state policy: no camera to place
+    features["observation.images.base_camera"] = PolicyFeature(FeatureType.VISUAL, (3, 64, 64))
+    assert policy.requirements()["camera_view"] == "board"
+
+
+def test_the_lerobot_env_config_takes_the_view():
+    from lerobot_env_kitbench.config import KitbenchEnvConfig
+
+    config = KitbenchEnvConfig(task=AK, obs_type="pixels_state", camera_size="64", camera_view="board")
+    assert config.gym_kwargs["sensor_configs"] == {"width": 64, "height": 64, "base_camera": BOARD}
+    with pytest.raises(KitbenchError, match="valid choices: board"):
+        KitbenchEnvConfig(task=AK, obs_type="pixels_state", camera_view="side")
+
+
+def test_an_evaluations_saved_dataset_keeps_the_size_and_view_it_rendered(needs_vulkan, tmp_path):
+    from kitbench.evaluation.config import EvalConfig
+    from kitbench.evaluation.runner import run_eval
+    from kitbench.evaluation.suite import adhoc_suite
+
+    settings = {"obs_mode": "rgb", "control_mode": "pd_ee_delta_pose", "camera_size": "32", "camera_view": "board"}
+    suite = adhoc_suite(AK, 1, 3, **settings)
+    data = tmp_path / "scored"
+    run_eval(EvalConfig.of(suite, "expert", tmp_path / "report", save_dataset=data), progress=False)
+    info = RecordingInfo.read(data)
+    assert (info.camera_size, info.camera_view) == ("32x32", "board")
+    assert "--camera-size 32x32 --camera-view board" in info.made_by
