@@ -162,7 +162,7 @@ def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
     assert ray_run == local
 
 
-def _record_command(out: Path, address: str, *extra: str) -> list[str]:
+def _record_command(out: Path, address: str, *extra: str, episodes: int = EPISODES) -> list[str]:
     return [
         sys.executable,
         "-m",
@@ -171,7 +171,7 @@ def _record_command(out: Path, address: str, *extra: str) -> list[str]:
         "--task",
         "LiftPegUpright-v1",
         "--episodes",
-        str(EPISODES),
+        str(episodes),
         "--out",
         str(out),
         "--executor",
@@ -336,7 +336,8 @@ def test_a_lost_head_ends_the_recording_in_one_line_saying_resume(tmp_path):
         os.environ[key] = value
     doomed = Cluster(initialize_head=True, head_node_args={"node_ip_address": "127.0.0.1", "num_cpus": 2})
     out, address = tmp_path / "lpu", doomed.address
-    proc = _start(_record_command(out, address, "--commit-interval", "0"))
+    # Episodes enough that the recording cannot finish between its first commit and the head's removal.
+    proc = _start(_record_command(out, address, "--commit-interval", "0", episodes=10 * EPISODES))
     deadline = time.monotonic() + 240
     try:
         while proc.poll() is None and len(_seeds(out)) < 1 and time.monotonic() < deadline:

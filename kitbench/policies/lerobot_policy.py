@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,21 +51,27 @@ def env_features(env, points: int = DEFAULT_POINTS) -> dict[str, tuple[int, ...]
     return provided
 
 
-def trained_setting(checkpoint: Path, key: str) -> str | None:
-    """A setting of the data a checkpoint was trained on (`control_mode`, `robot`): from its kitbench dataset's
-    recording settings, else from the kitbench env it was evaluated on during training (None if neither is
-    known). A recording without a `robot` setting was made on its task's default robot."""
+def trained_settings(checkpoint: Path, keys: tuple[str, ...]) -> dict[str, Any]:
+    """Settings of the data a checkpoint was trained on (`control_mode`, `robot`, `camera_view`, ...), read once:
+    from its kitbench dataset's recording settings, else from the kitbench env it was evaluated on during training
+    (None for a key neither knows). A recording without a `robot` setting was made on its task's default robot."""
+    unknown = dict.fromkeys(keys)
     path = checkpoint / "train_config.json"
     if not path.is_file():
-        return None
+        return unknown
     train = json.loads(path.read_text())
     root = (train.get("dataset") or {}).get("root")
     if root:
         recording = RecordingInfo.read(root)
         if recording is not None:
-            return recording.robot_uid if key == "robot" else getattr(recording, key)
+            return {key: recording.robot_uid if key == "robot" else getattr(recording, key) for key in keys}
     env = train.get("env") or {}
-    return env.get(key) if env.get("type") == "kitbench" else None
+    return {key: env.get(key) for key in keys} if env.get("type") == "kitbench" else unknown
+
+
+def trained_setting(checkpoint: Path, key: str) -> Any:
+    """One of `trained_settings`."""
+    return trained_settings(checkpoint, (key,))[key]
 
 
 def trained_depth_unit(checkpoint: Path) -> str:
@@ -73,11 +80,6 @@ def trained_depth_unit(checkpoint: Path) -> str:
     path = checkpoint / "train_config.json"
     train = json.loads(path.read_text()) if path.is_file() else {}
     return (train.get("dataset") or {}).get("depth_output_unit") or "mm"
-
-
-def trained_control_mode(checkpoint: Path) -> str | None:
-    """The control mode of the actions a checkpoint was trained on (`trained_setting`)."""
-    return trained_setting(checkpoint, "control_mode")
 
 
 DEVICES = ("auto", "cpu", "cuda")
@@ -159,9 +161,10 @@ class LeRobotPolicy:
         self._torch = torch
         self.name = f"lerobot:{checkpoint}"
         self.path = path  # the pretrained_model folder
-        self.control_mode = trained_control_mode(path)
-        self.robot = trained_setting(path, "robot")
-        self.camera_view = trained_setting(path, "camera_view")
+        trained = trained_settings(path, ("control_mode", "robot", "camera_view"))
+        self.control_mode = trained["control_mode"]
+        self.robot = trained["robot"]
+        self.camera_view = trained["camera_view"]
         self.depth_unit = trained_depth_unit(path)
         self._sampler: PointSampler | None = None
 

@@ -1,0 +1,423 @@
+"""Can a policy's image encoder read, from an AssemblingKits recording's cameras, where the slot is?
+
+    python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,act_dilated,diffusion] [--shifts 0.05,0]
+        [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
+
+An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
+use it. This separates the two. For every dataset x encoder x shift it trains the encoder, built by lerobot's own
+classes as the policy builds it, from scratch, with a small head that regresses from the recording's cameras (every
+camera through the one shared encoder, as both policies share it) what the expert's transport depends on: the
+slot's position (`goal_xy`), its yaw folded by the shape's symmetry (`goal_yaw_sym`) and the loose shape's
+position. Nothing but the images goes in. It then scores the held-out episodes (the last 10% of the recording):
+
+- slot: the predicted slot position's error (mm, median / p90), and how often the slot nearest to the prediction is
+  the right one of the kit's five (`right slot`). A kit has empty pockets besides the target's; `chance` is what
+  picking one of its empty pockets at random gets, `mean` what predicting the training set's mean position gets.
+- yaw: the slot's yaw error (degrees, median) and the share within the success test's 4 degrees, for the shapes
+  whose yaw matters (not the disc or ring).
+- shape: the loose shape's position error (mm, median).
+
+Encoders: `act` (ACT's backbone: ResNet-18 with frozen batch norm, its layer-4 map, then a 1x1 projection, as
+ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_stride_with_dilation` raises for a
+ResNet-18, whose blocks torchvision builds without dilation), `diffusion` (Diffusion's encoder: ResNet-18 with
+group norm and its spatial-softmax keypoints). The head is
+the same small MLP for all. `--shifts` are the training images' random shifts (the share of the image a side, as
+the image configs' `RandomAffine` translate; 0 for none). Figures come from one training seed each: a gap of a few
+mm between variants is within seed noise, a factor is not. Exit status: 2 for a bad argument.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from kitbench.errors import KitbenchError  # noqa: E402
+
+ENCODERS = ("act", "diffusion")
+TASK = "AssemblingKits-v1"
+IMAGES = "observation.images."
+ENVIRONMENT_STATE = "observation.environment_state"
+# the regression targets, by their names in the environment state
+TARGETS = {
+    "goal": ("goal_xy.0", "goal_xy.1"),
+    "yaw": ("goal_yaw_sym.0", "goal_yaw_sym.1"),
+    "shape": ("obj_pose.x", "obj_pose.y"),
+}
+HELD_OUT = 0.1  # the share of the recording's episodes, its last ones, scored and never trained on
+PROJECTED = 32  # channels of ACT's feature map kept a cell (ACT projects to its model width; the head stays small)
+HIDDEN = 256
+YAW_TOLERANCE = 4.0  # degrees: the task's rot_correct
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What the probe reads of one AssemblingKits recording: its frames' targets and episodes, and per episode
+    its kit's slots."""
+
+    root: Path
+    cameras: tuple[str, ...]
+    image_shape: tuple[int, int, int]  # C, H, W
+    camera_size: str
+    camera_view: str | None
+    targets: np.ndarray  # frames x 6: goal x y, folded yaw cos sin, shape x y
+    episode_of: np.ndarray  # frame -> episode index
+    slots: dict[int, np.ndarray]  # episode index -> its kit's slot positions (5 x 2)
+    target_slot: dict[int, int]  # episode index -> the index of the slot its shape goes into
+    empty: dict[int, int]  # episode index -> empty pockets of its kit (the target's included)
+    symmetry: dict[int, float]  # episode index -> its shape's rotational symmetry (rad; 0: any yaw fits)
+
+
+def read_recording(root: Path) -> Recording:
+    """One recording's targets and kits; a folder that is not an AssemblingKits recording with cameras is one
+    line."""
+    from kitbench.kits import shape_geometry
+    from kitbench.metadata import RecordingInfo, read_episode_file
+    from kitbench.tasks.assembling_kits import ROBOT_VARIANTS, KitVariant, _load
+
+    recording = RecordingInfo.read(root)
+    if recording is None:
+        raise KitbenchError(f"{root} is not a kitbench recording (no meta/kitbench_recording.json)")
+    if recording.task != TASK:
+        raise KitbenchError(f"{root} records {recording.task}; the probe reads {TASK} recordings only")
+    info = json.loads((root / "meta" / "info.json").read_text())
+    features = info["features"]
+    cameras = tuple(sorted(k for k in features if k.startswith(IMAGES)))
+    if not cameras:
+        raise KitbenchError(f"{root} has no camera images (obs_mode {recording.obs_mode}); record with rgb")
+    h, w, c = features[cameras[0]]["shape"]
+    names = features[ENVIRONMENT_STATE]["names"]
+    columns = [names.index(n) for group in TARGETS.values() for n in group]
+
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(sorted((root / "data").rglob("*.parquet")), columns=[ENVIRONMENT_STATE, "episode_index"])
+    state = np.stack(table.column(ENVIRONMENT_STATE).to_numpy(zero_copy_only=False)).astype(np.float32)
+    episode_of = table.column("episode_index").to_numpy().astype(np.int64)
+    kits = _load(None, ROBOT_VARIANTS.get(recording.robot or "", KitVariant()).scale)
+    slots, target_slot, empty, symmetry = {}, {}, {}, {}
+    for line in read_episode_file(root):
+        kit = kits[int(line.config["kit_episode"])]
+        i = int(line.episode_index)
+        slots[i] = np.array([s.pos for s in kit.slots], dtype=np.float64)
+        target_slot[i] = int(kit.obj_to_place)
+        empty[i] = len(kit.slots) - len(kit.obj_in_place)
+        symmetry[i] = float(shape_geometry(kit.target_slot.shape_id, kits.board.scale).symmetry)
+    return Recording(
+        root=root,
+        cameras=cameras,
+        image_shape=(c, h, w),
+        camera_size=f"{w}x{h}",
+        camera_view=recording.camera_view,
+        targets=state[:, columns],
+        episode_of=episode_of,
+        slots=slots,
+        target_slot=target_slot,
+        empty=empty,
+        symmetry=symmetry,
+    )
+
+
+def build_encoder(kind: str, image_shape: tuple[int, int, int]):
+    """(module, features per camera): the image encoder of lerobot's ACT or Diffusion, built by their own classes
+    from scratch (no pretrained weights: none can be downloaded here, and the shipped configs use none)."""
+    import torch
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    inputs = {
+        "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(8,)),
+        IMAGES + "probe": PolicyFeature(type=FeatureType.VISUAL, shape=image_shape),
+    }
+    outputs = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(7,))}
+    if kind == "diffusion":
+        from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+        from lerobot.policies.diffusion.modeling_diffusion import DiffusionRgbEncoder
+
+        config = DiffusionConfig(
+            input_features=inputs, output_features=outputs, crop_shape=None, pretrained_backbone_weights=None
+        )
+        encoder = DiffusionRgbEncoder(config)
+        return encoder, encoder.feature_dim
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACT
+
+    config = ACTConfig(
+        input_features=inputs,
+        output_features=outputs,
+        pretrained_backbone_weights=None,
+    )
+    backbone = ACT(config).backbone
+
+    class ActMap(torch.nn.Module):
+        """ACT's layer-4 feature map, projected a cell and flattened (the tokens' content and their places)."""
+
+        def __init__(self):
+            super().__init__()
+            self.backbone = backbone
+            self.project = torch.nn.Conv2d(512, PROJECTED, kernel_size=1)
+
+        def forward(self, x):
+            return self.project(self.backbone(x)["feature_map"]).flatten(1)
+
+    module = ActMap()
+    with torch.no_grad():
+        size = module(torch.zeros(1, *image_shape)).shape[1]
+    return module, size
+
+
+def _image_stats(root: Path, cameras: tuple[str, ...]):
+    """Per camera the dataset's per-channel mean and std (the policies' MEAN_STD image normalisation)."""
+    stats = json.loads((root / "meta" / "stats.json").read_text())
+    return {
+        cam: (
+            np.array(stats[cam]["mean"], dtype=np.float32).reshape(3, 1, 1),
+            np.array(stats[cam]["std"], dtype=np.float32).reshape(3, 1, 1),
+        )
+        for cam in cameras
+    }
+
+
+def _folded_yaw_error(pred: np.ndarray, true: np.ndarray, symmetry: float) -> float:
+    """Degrees between two yaws given folded by the shape's symmetry ([cos, sin] of k * yaw, k = 2 pi / symmetry)."""
+    k = 2 * math.pi / symmetry
+    a = math.atan2(pred[1], pred[0]) - math.atan2(true[1], true[0])
+    return math.degrees(abs((a + math.pi) % (2 * math.pi) - math.pi) / k)
+
+
+def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> dict:
+    """The held-out figures of predictions (frames x 6, in the targets' units) of `frames`."""
+    true = recording.targets[frames]
+    goal_err = np.linalg.norm(predicted[:, :2] - true[:, :2], axis=1) * 1000
+    shape_err = np.linalg.norm(predicted[:, 4:6] - true[:, 4:6], axis=1) * 1000
+    right, yaw = [], []
+    for row, frame in enumerate(frames):
+        episode = int(recording.episode_of[frame])
+        nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, :2], axis=1)))
+        right.append(nearest == recording.target_slot[episode])
+        if recording.symmetry[episode] > 0:
+            yaw.append(_folded_yaw_error(predicted[row, 2:4], true[row, 2:4], recording.symmetry[episode]))
+    yaws = np.array(yaw) if yaw else np.array([np.nan])
+    return {
+        "goal_mm": [float(np.median(goal_err)), float(np.percentile(goal_err, 90))],
+        "right_slot": float(np.mean(right)),
+        "yaw_deg": float(np.median(yaws)),
+        "yaw_within_4deg": float(np.mean(yaws <= YAW_TOLERANCE)),
+        "shape_mm": float(np.median(shape_err)),
+    }
+
+
+def split(recording: Recording, eval_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Training frames (the first 90% of episodes) and at most `eval_frames` evenly spaced held-out ones."""
+    episodes = np.unique(recording.episode_of)
+    cut = episodes[int(len(episodes) * (1 - HELD_OUT))]
+    train = np.flatnonzero(recording.episode_of < cut)
+    held = np.flatnonzero(recording.episode_of >= cut)
+    if len(train) == 0 or len(held) == 0:
+        raise KitbenchError(f"{recording.root} has {len(episodes)} episodes; the probe needs at least 2")
+    step = max(1, len(held) // eval_frames)
+    return train, held[::step][:eval_frames]
+
+
+def baselines(recording: Recording, train: np.ndarray, held: np.ndarray) -> dict:
+    """What predicting the training frames' mean gets, and what picking an empty pocket at random gets."""
+    mean = np.broadcast_to(recording.targets[train].mean(axis=0), (len(held), recording.targets.shape[1]))
+    figures = score(recording, held, np.array(mean))
+    chance = float(np.mean([1.0 / recording.empty[int(recording.episode_of[f])] for f in held]))
+    return {"mean": figures, "chance_right_slot": chance}
+
+
+def train_and_score(
+    recording: Recording,
+    dataset,
+    encoder_kind: str,
+    shift: float,
+    steps: int,
+    batch: int,
+    lr: float,
+    checkpoints: list[int],
+    eval_frames: int,
+    seed: int = 1000,
+    progress=None,
+) -> dict:
+    """Train the encoder and head from scratch on the training frames; score the held-out ones at each of
+    `checkpoints` (update counts)."""
+    import torch
+    from torchvision.transforms import v2
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    train, held = split(recording, eval_frames)
+    encoder, width = build_encoder(encoder_kind, recording.image_shape)
+    head = torch.nn.Sequential(
+        torch.nn.Linear(width * len(recording.cameras), HIDDEN), torch.nn.ReLU(), torch.nn.Linear(HIDDEN, 6)
+    )
+    params = [*encoder.parameters(), *head.parameters()]
+    optimizer = torch.optim.AdamW(params, lr=lr, weight_decay=1e-4)
+    mu = torch.from_numpy(recording.targets[train].mean(axis=0))
+    sigma = torch.from_numpy(recording.targets[train].std(axis=0) + 1e-6)
+    stats = {
+        cam: tuple(torch.from_numpy(a) for a in pair)
+        for cam, pair in _image_stats(recording.root, recording.cameras).items()
+    }
+    shifter = v2.RandomAffine(degrees=0.0, translate=(shift, shift)) if shift > 0 else None
+
+    def images(frames: np.ndarray, augment: bool) -> list:
+        items = [dataset[int(f)] for f in frames]
+        per_camera = []
+        for cam in recording.cameras:
+            x = torch.stack([item[cam] for item in items])
+            if augment and shifter is not None:
+                x = torch.stack([shifter(img) for img in x])
+            mean, std = stats[cam]
+            per_camera.append((x - mean) / std)
+        return per_camera
+
+    def forward(per_camera: list):
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            features = torch.cat([encoder(x).flatten(1) for x in per_camera], dim=1)
+            return head(features).float()
+
+    def evaluate() -> dict:
+        encoder.eval()
+        head.eval()
+        with torch.no_grad():
+            out = [forward(images(held[i : i + 64], augment=False)) * sigma + mu for i in range(0, len(held), 64)]
+        encoder.train()
+        head.train()
+        return score(recording, held, torch.cat(out).numpy())
+
+    marks: dict[int, dict] = {}
+    update_seconds = 0.0
+    for step in range(1, steps + 1):
+        frames = rng.choice(train, size=batch)
+        per_camera = images(frames, augment=True)
+        target = (torch.from_numpy(recording.targets[frames]) - mu) / sigma
+        begin = time.perf_counter()
+        loss = torch.nn.functional.l1_loss(forward(per_camera), target)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        update_seconds += time.perf_counter() - begin
+        if step in checkpoints:
+            marks[step] = {**evaluate(), "train_l1": float(loss.detach())}
+        if progress is not None:
+            progress(step)
+    return {"update_s": update_seconds / steps, "at": marks}
+
+
+def open_dataset(root: Path):
+    """The recording as lerobot's `LeRobotDataset` serves it to `lerobot-train` (kitbench's reader, as the plugin
+    installs it)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from kitbench.training import reader
+
+    reader.install()
+    info = json.loads((root / "meta" / "kitbench_recording.json").read_text())
+    return LeRobotDataset(info.get("repo_id") or f"kitbench/{TASK}", root=root)
+
+
+def parse_list(text: str, kind, name: str, valid: str) -> list:
+    try:
+        values = [kind(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        values = []
+    if not values:
+        raise KitbenchError(f"{name} {text!r} is not a comma-separated list of {valid}")
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("datasets", nargs="+", type=Path, help="AssemblingKits recordings with cameras")
+    parser.add_argument("--encoders", default="act", help=f"comma-separated, of {', '.join(ENCODERS)}")
+    parser.add_argument(
+        "--shifts", default="0.05", help="training images' random shifts (share of a side), e.g. 0.05,0"
+    )
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--checkpoints", help="update counts to score at (default: a quarter, half and the end)")
+    parser.add_argument("--eval-frames", type=int, default=1000)
+    parser.add_argument("--out", help="also write the figures to this JSON file")
+    args = parser.parse_args(argv)
+    try:
+        encoders = parse_list(args.encoders, str, "--encoders", ", ".join(ENCODERS))
+        for kind in encoders:
+            if kind not in ENCODERS:
+                raise KitbenchError(f"--encoders: unknown encoder {kind!r}; valid choices: {', '.join(ENCODERS)}")
+        shifts = parse_list(args.shifts, float, "--shifts", "numbers in 0..0.5")
+        if any(not 0 <= s <= 0.5 for s in shifts):
+            raise KitbenchError(f"--shifts {args.shifts!r}: each must be in 0..0.5")
+        if args.steps < 1 or args.batch < 1 or args.eval_frames < 1:
+            raise KitbenchError("--steps, --batch and --eval-frames must be at least 1")
+        default = sorted({max(1, args.steps // 4), max(1, args.steps // 2), args.steps})
+        checkpoints = (
+            default if args.checkpoints is None else parse_list(args.checkpoints, int, "--checkpoints", "update counts")
+        )
+        if any(not 1 <= c <= args.steps for c in checkpoints):
+            raise KitbenchError(f"--checkpoints {args.checkpoints!r}: each must be in 1..--steps ({args.steps})")
+        recordings = [read_recording(root) for root in args.datasets]
+    except KitbenchError as exc:
+        print(f"perception_probe: error: {exc}", file=sys.stderr)
+        return 2
+    import torch
+
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    rows = []
+    for recording in recordings:
+        dataset = open_dataset(recording.root)
+        train, held = split(recording, args.eval_frames)
+        base = baselines(recording, train, held)
+        name = recording.root.name
+        view = recording.camera_view or "default"
+        print(
+            f"{name}: {recording.camera_size} {view} view, {', '.join(c[len(IMAGES) :] for c in recording.cameras)}; "
+            f"{len(train)} training frames, {len(held)} held-out; mean predictor: slot "
+            f"{base['mean']['goal_mm'][0]:.0f} mm, right slot {base['mean']['right_slot']:.0%}, shape "
+            f"{base['mean']['shape_mm']:.0f} mm; an empty pocket at random: right slot {base['chance_right_slot']:.0%}",
+            flush=True,
+        )
+        for kind in encoders:
+            for shift in shifts:
+                result = train_and_score(
+                    recording, dataset, kind, shift, args.steps, args.batch, args.lr, checkpoints, args.eval_frames
+                )
+                row = {
+                    "dataset": name,
+                    "camera_size": recording.camera_size,
+                    "camera_view": view,
+                    "encoder": kind,
+                    "shift": shift,
+                    **result,
+                    "baseline": base,
+                }
+                rows.append(row)
+                for step, m in result["at"].items():
+                    print(
+                        f"  {kind:<12} shift {shift:<5g} {step:>6} updates: slot {m['goal_mm'][0]:5.1f} / "
+                        f"{m['goal_mm'][1]:5.1f} mm, right slot {m['right_slot']:4.0%}, yaw {m['yaw_deg']:5.1f} deg "
+                        f"({m['yaw_within_4deg']:4.0%} within 4), shape {m['shape_mm']:5.1f} mm, "
+                        f"train L1 {m['train_l1']:.3f}",
+                        flush=True,
+                    )
+                print(f"  {kind:<12} shift {shift:<5g} {result['update_s']:.3f} s an update", flush=True)
+    if args.out:
+        Path(args.out).write_text(
+            json.dumps({"steps": args.steps, "batch": args.batch, "lr": args.lr, "rows": rows}, indent=1) + "\n"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

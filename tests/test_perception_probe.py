@@ -1,0 +1,116 @@
+"""bench/perception_probe.py: what an image policy's encoder can read of the AssemblingKits slot from a
+recording's cameras, scored on held-out episodes."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.perception_probe import Recording, main, score
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _recording(symmetry: float) -> Recording:
+    """Two frames of one episode whose kit's five slots lie 5 cm apart on a line; the shape goes into slot 2."""
+    slots = np.array([[0.0, 0.05 * i] for i in range(5)])
+    goal, yaw = slots[2], 0.0
+    k = 2 * math.pi / symmetry if symmetry > 0 else 0.0
+    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1]
+    return Recording(
+        root=Path("."),
+        cameras=("observation.images.base_camera",),
+        image_shape=(3, 8, 8),
+        camera_size="8x8",
+        camera_view=None,
+        targets=np.array([row, row], dtype=np.float32),
+        episode_of=np.array([0, 0]),
+        slots={0: slots},
+        target_slot={0: 2},
+        empty={0: 3},
+        symmetry={0: symmetry},
+    )
+
+
+def _folded(yaw_deg: float, symmetry: float) -> list[float]:
+    k = 2 * math.pi / symmetry
+    return [math.cos(k * math.radians(yaw_deg)), math.sin(k * math.radians(yaw_deg))]
+
+
+def test_the_slot_figures_measure_what_they_name():
+    square = math.pi / 2  # a square fits every quarter turn
+    recording = _recording(square)
+    frames = np.array([0, 1])
+    exact = score(recording, frames, recording.targets.astype(np.float64))
+    assert exact["goal_mm"] == [0.0, 0.0] and exact["right_slot"] == 1.0 and exact["shape_mm"] == 0.0
+    assert exact["yaw_deg"] == pytest.approx(0.0, abs=1e-6) and exact["yaw_within_4deg"] == 1.0
+    # 2 cm off towards the next slot is still nearest the right one; 3 cm off is nearer the next
+    near = np.array([[0.0, 0.12, *_folded(90.0, square), 0.1, -0.1], [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08]])
+    figures = score(recording, frames, near)
+    assert figures["goal_mm"][0] == pytest.approx(25.0, abs=1e-3)
+    assert figures["right_slot"] == 0.5
+    # a quarter turn is the same fit for a square; an eighth is as far off as a square can be
+    assert figures["yaw_deg"] == pytest.approx(22.5, abs=1e-3) and figures["yaw_within_4deg"] == 0.5
+    assert figures["shape_mm"] == pytest.approx(10.0, abs=1e-3)
+
+
+def test_a_shape_any_yaw_fits_has_no_yaw_figure():
+    recording = _recording(0.0)
+    figures = score(recording, np.array([0, 1]), recording.targets.astype(np.float64))
+    assert math.isnan(figures["yaw_deg"]) and figures["right_slot"] == 1.0
+
+
+@pytest.fixture(scope="module")
+def kits_rgb(tmp_path_factory):
+    from kitbench.recording.recorder import load_recipe, record
+
+    out = tmp_path_factory.mktemp("probe") / "kits"
+    recipe = load_recipe(ROOT / "datasets" / "assembling_kits_rgb_64.toml", episodes=3, out=out, workers=1)
+    record(recipe.replace(mcap=False), progress=False)
+    return out
+
+
+def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(kits_rgb, tmp_path, capsys, needs_vulkan):
+    report = tmp_path / "probe.json"
+    argv = [str(kits_rgb), "--encoders", "act,diffusion", "--shifts", "0.05,0", "--steps", "2", "--eval-frames", "8"]
+    assert main([*argv, "--out", str(report)]) == 0
+    rows = json.loads(report.read_text())["rows"]
+    assert [(r["encoder"], r["shift"]) for r in rows] == [
+        ("act", 0.05),
+        ("act", 0.0),
+        ("diffusion", 0.05),
+        ("diffusion", 0.0),
+    ]
+    for row in rows:
+        assert row["camera_size"] == "64x64" and row["camera_view"] == "board"
+        assert sorted(row["at"], key=int) == ["1", "2"] and row["update_s"] > 0
+        for figures in row["at"].values():
+            assert 0.0 <= figures["right_slot"] <= 1.0 and math.isfinite(figures["goal_mm"][0])
+        # the last of three episodes is held out: its kit's empty pockets give the chance figure
+        assert 0.0 < row["baseline"]["chance_right_slot"] <= 1.0
+    assert "right slot" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--encoders", "act,vit"], "unknown encoder 'vit'; valid choices: act, diffusion"),
+        (["--shifts", "0.9"], "--shifts '0.9': each must be in 0..0.5"),
+        (["--shifts", "x"], "--shifts 'x' is not a comma-separated list"),
+        (["--steps", "10", "--checkpoints", "20"], "--checkpoints '20': each must be in 1..--steps (10)"),
+    ],
+)
+def test_bad_arguments_are_one_line(argv, needle, tmp_path, capsys):
+    assert main([str(tmp_path), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("perception_probe: error:") and needle in err
+
+
+def test_a_folder_that_is_not_a_recording_is_one_line(tmp_path, capsys):
+    assert main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "is not a kitbench recording" in err
