@@ -371,9 +371,6 @@ def main(argv: list[str] | None = None) -> int:
     except KitbenchError as exc:
         print(f"perception_probe: error: {exc}", file=sys.stderr)
         return 2
-    import torch
-
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     rows = []
     for recording in recordings:
         dataset = open_dataset(recording.root)
