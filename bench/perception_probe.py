@@ -1,6 +1,6 @@
 """Can a policy's image encoder read, from an AssemblingKits recording's cameras, where the slot is?
 
-    python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,act_dilated,diffusion] [--shifts 0.05,0]
+    python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
 
 An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
@@ -76,6 +76,7 @@ class Recording:
     target_slot: dict[int, int]  # episode index -> the index of the slot its shape goes into
     empty: dict[int, int]  # episode index -> empty pockets of its kit (the target's included)
     symmetry: dict[int, float]  # episode index -> its shape's rotational symmetry (rad; 0: any yaw fits)
+    repo_id: str = f"kitbench/{TASK}"
 
 
 def read_recording(root: Path) -> Recording:
@@ -84,6 +85,7 @@ def read_recording(root: Path) -> Recording:
     from kitbench.kits import shape_geometry
     from kitbench.metadata import RecordingInfo, read_episode_file
     from kitbench.tasks.assembling_kits import ROBOT_VARIANTS, KitVariant, _load
+    from kitbench.training.columns import column_array
 
     recording = RecordingInfo.read(root)
     if recording is None:
@@ -101,9 +103,12 @@ def read_recording(root: Path) -> Recording:
 
     import pyarrow.parquet as pq
 
-    table = pq.read_table(sorted((root / "data").rglob("*.parquet")), columns=[ENVIRONMENT_STATE, "episode_index"])
-    state = np.stack(table.column(ENVIRONMENT_STATE).to_numpy(zero_copy_only=False)).astype(np.float32)
-    episode_of = table.column("episode_index").to_numpy().astype(np.int64)
+    table = pq.read_table(
+        sorted((root / "data").rglob("*.parquet")), columns=[ENVIRONMENT_STATE, "episode_index", "index"]
+    )
+    order = np.argsort(column_array(table.column("index")), kind="stable")  # row i is the dataset's frame i
+    state = column_array(table.column(ENVIRONMENT_STATE))[order].astype(np.float32)
+    episode_of = column_array(table.column("episode_index"))[order].astype(np.int64)
     kits = _load(None, ROBOT_VARIANTS.get(recording.robot or "", KitVariant()).scale)
     slots, target_slot, empty, symmetry = {}, {}, {}, {}
     for line in read_episode_file(root):
@@ -125,6 +130,7 @@ def read_recording(root: Path) -> Recording:
         target_slot=target_slot,
         empty=empty,
         symmetry=symmetry,
+        repo_id=recording.repo_id or f"kitbench/{TASK}",
     )
 
 
@@ -188,10 +194,12 @@ def _image_stats(root: Path, cameras: tuple[str, ...]):
 
 
 def _folded_yaw_error(pred: np.ndarray, true: np.ndarray, symmetry: float) -> float:
-    """Degrees between two yaws given folded by the shape's symmetry ([cos, sin] of k * yaw, k = 2 pi / symmetry)."""
+    """Degrees between two yaws given folded by the shape's symmetry ([cos, sin] of k * yaw, k = 2 pi / symmetry),
+    as the task's success test measures it."""
+    from kitbench.tasks.assembling_kits import yaw_error
+
     k = 2 * math.pi / symmetry
-    a = math.atan2(pred[1], pred[0]) - math.atan2(true[1], true[0])
-    return math.degrees(abs((a + math.pi) % (2 * math.pi) - math.pi) / k)
+    return math.degrees(yaw_error(math.atan2(pred[1], pred[0]) / k, math.atan2(true[1], true[0]) / k, symmetry))
 
 
 def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> dict:
@@ -245,18 +253,17 @@ def train_and_score(
     batch: int,
     lr: float,
     checkpoints: list[int],
-    eval_frames: int,
+    train: np.ndarray,
+    held: np.ndarray,
     seed: int = 1000,
-    progress=None,
 ) -> dict:
-    """Train the encoder and head from scratch on the training frames; score the held-out ones at each of
+    """Train the encoder and head from scratch on the `train` frames; score the `held` ones at each of
     `checkpoints` (update counts)."""
     import torch
     from torchvision.transforms import v2
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    train, held = split(recording, eval_frames)
     encoder, width = build_encoder(encoder_kind, recording.image_shape)
     head = torch.nn.Sequential(
         torch.nn.Linear(width * len(recording.cameras), HIDDEN), torch.nn.ReLU(), torch.nn.Linear(HIDDEN, 6)
@@ -310,12 +317,10 @@ def train_and_score(
         update_seconds += time.perf_counter() - begin
         if step in checkpoints:
             marks[step] = {**evaluate(), "train_l1": float(loss.detach())}
-        if progress is not None:
-            progress(step)
     return {"update_s": update_seconds / steps, "at": marks}
 
 
-def open_dataset(root: Path):
+def open_dataset(recording: Recording):
     """The recording as lerobot's `LeRobotDataset` serves it to `lerobot-train` (kitbench's reader, as the plugin
     installs it)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -323,8 +328,7 @@ def open_dataset(root: Path):
     from kitbench.training import reader
 
     reader.install()
-    info = json.loads((root / "meta" / "kitbench_recording.json").read_text())
-    return LeRobotDataset(info.get("repo_id") or f"kitbench/{TASK}", root=root)
+    return LeRobotDataset(recording.repo_id, root=recording.root)
 
 
 def parse_list(text: str, kind, name: str, valid: str) -> list:
@@ -373,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rows = []
     for recording in recordings:
-        dataset = open_dataset(recording.root)
+        dataset = open_dataset(recording)
         train, held = split(recording, args.eval_frames)
         base = baselines(recording, train, held)
         name = recording.root.name
@@ -388,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
         for kind in encoders:
             for shift in shifts:
                 result = train_and_score(
-                    recording, dataset, kind, shift, args.steps, args.batch, args.lr, checkpoints, args.eval_frames
+                    recording, dataset, kind, shift, args.steps, args.batch, args.lr, checkpoints, train, held
                 )
                 row = {
                     "dataset": name,
