@@ -22,8 +22,8 @@ ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_st
 ResNet-18, whose blocks torchvision builds without dilation), `diffusion` (Diffusion's encoder: ResNet-18 with
 group norm and its spatial-softmax keypoints). The head is
 the same small MLP for all. `--shifts` are the training images' random shifts (the share of the image a side, as
-the image configs' `RandomAffine` translate; 0 for none). Figures come from one training seed each: a gap of a few
-mm between variants is within seed noise, a factor is not. Exit status: 2 for a bad argument.
+the image configs' `RandomAffine` translate; 0 for none). Figures come from one training seed each (1000); how far
+they move between seeds is not measured. Exit status: 2 for a bad argument.
 """
 
 from __future__ import annotations
