@@ -1,0 +1,84 @@
+"""bench/gpu_run.py, the lent GPU machine's prepared run: what it reads of lerobot-train's log and nvidia-smi's
+samples, and its bad arguments."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+import pytest
+
+from bench.gpu_run import first_step_seconds, gpu_summary, main, slowest_imports, step_window
+
+# lerobot-train's output as it reads in the log (tqdm's carriage returns already turned into newlines)
+LOG = """INFO 2026-11-28 06:49:02 ot_train.py:447 Effective batch size: 64 x 1 = 64
+Training:   0%|          | 0/300 [00:00<?, ?step/s]INFO 2026-11-28 06:49:02 ot_train.py:597 Start offline training
+Training:   0%|          | 1/300 [00:25<2:04:43, 25.03s/step]
+Training:   1%|▏         | 4/300 [00:25<23:31,  4.77s/step]
+Training:  33%|███▎      | 100/300 [00:30<00:10, 18.90step/s]INFO 2026-11-28 06:49:32 ot_train.py:641 step:100 \
+smpl:6K updt_s:0.071 data_s:0.235
+Training: 100%|██████████| 300/300 [00:39<00:00, 33.47step/s]INFO 2026-11-28 06:49:41 ot_train.py:641 step:300 \
+smpl:19K updt_s:0.033 data_s:0.007
+"""
+
+
+def _samples(start: str, busy: list[int]) -> str:
+    t0 = datetime.strptime(start, "%Y/%m/%d %H:%M:%S")
+    return "\n".join(
+        f"{datetime.fromtimestamp(t0.timestamp() + i).strftime('%Y/%m/%d %H:%M:%S')}.250, {b}, {600 + i}"
+        for i, b in enumerate(busy)
+    )
+
+
+def test_the_busy_share_is_taken_over_the_logged_steps_only():
+    window = step_window(LOG)
+    assert window == (datetime(2026, 11, 28, 6, 49, 32), datetime(2026, 11, 28, 6, 49, 41))
+    # 30 idle seconds of start-up from 06:49:02, then 10 busy ones at 20% from 06:49:32, then 5 idle at exit
+    samples = _samples("2026/11/28 06:49:02", [0] * 30 + [20] * 10 + [0] * 5)
+    summary = gpu_summary(samples, window)
+    assert summary["samples"] == 9 and summary["gpu_busy_mean"] == pytest.approx(20.0)
+    assert summary["gpu_busy_mean_run"] == pytest.approx(200 / 45)
+    assert summary["gpu_memory_max_mib"] == 644
+
+
+def test_no_samples_or_no_window_give_no_busy_figure():
+    assert gpu_summary("", None)["gpu_busy_mean"] is None
+    summary = gpu_summary(_samples("2026/11/28 06:49:02", [10, 30]), None)
+    assert summary["gpu_busy_mean"] is None and summary["gpu_busy_mean_run"] == pytest.approx(20.0)
+    assert step_window("INFO 2026-11-28 06:49:32 ot_train.py:641 step:100 updt_s:0.1 data_s:0.1") is None
+
+
+def test_the_first_steps_wait_is_read_from_the_progress_bar():
+    assert first_step_seconds(LOG) == 25
+    assert first_step_seconds(LOG.replace("1/300 [00:25", "1/300 [02:25")) == 145
+    assert first_step_seconds("no progress bar") is None
+
+
+def test_import_time_is_summed_per_package_by_its_own_modules():
+    importtime = """import time: self [us] | cumulative | imported package
+import time:       191 |        191 |   _io
+import time:    400000 |    900000 |     torch._C
+import time:    100000 |   1000000 |   torch
+import time:   2000000 |   2000000 |       diffusers.schedulers
+import time:     50000 |   2100000 |     diffusers
+import time:     30000 |   3200000 |   lerobot.policies.factory
+"""
+    assert slowest_imports(importtime, count=3) == {"diffusers": 2.05, "torch": 0.5, "lerobot": 0.03}
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--plan", "loader", "--pipelines", "during"], "--pipelines: 'during' is not a list of before, after"),
+        (["--plan", "score", "--score-runs", "14"], "--score-runs: '14' is not WORKERSxBATCH, e.g. 14x10"),
+        (["--plan", "loader", "--extra=--batch_size=256"], "--extra needs a --tag"),
+        (["--plan", "learn", "--config", "act_nothing"], "no config policies/act_nothing.json"),
+        (["--plan", "fit"], "invalid choice: 'fit'"),
+    ],
+)
+def test_bad_arguments_are_one_line(argv, needle, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exited:
+        main([*argv, "--out", str(tmp_path / "out")])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("gpu_run: error:") and needle in err
+    assert not (tmp_path / "out").exists()
