@@ -2,6 +2,7 @@
 
     python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
+        [--save-policy DIR --policy-config policies/act_assembling_kits_rgb_cpu.json]
 
 An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
 use it. This separates the two. For every dataset x encoder x shift it trains the encoder, built by lerobot's own
@@ -23,7 +24,12 @@ ResNet-18, whose blocks torchvision builds without dilation), `diffusion` (Diffu
 group norm and its spatial-softmax keypoints). The head is
 the same small MLP for all. `--shifts` are the training images' random shifts (the share of the image a side, as
 the image configs' `RandomAffine` translate; 0 for none). Figures come from one training seed each (1000); how far
-they move between seeds is not measured. Exit status: 2 for a bad argument.
+they move between seeds is not measured.
+
+`--save-policy DIR` (one dataset, the `act` encoder, one shift) writes an ACT policy built as `--policy-config`'s
+`lerobot-train` builds it on that recording, its image backbone the trained encoder's, with its processors: stock
+`lerobot-train --config_path=<config> --policy.path=DIR` then trains the policy from it, a two-stage training
+whose first stage learns the slot from a direct target. Exit status: 2 for a bad argument.
 """
 
 from __future__ import annotations
@@ -256,9 +262,9 @@ def train_and_score(
     train: np.ndarray,
     held: np.ndarray,
     seed: int = 1000,
-) -> dict:
+) -> tuple[dict, object]:
     """Train the encoder and head from scratch on the `train` frames; score the `held` ones at each of
-    `checkpoints` (update counts)."""
+    `checkpoints` (update counts). Returns the figures and the trained encoder."""
     import torch
     from torchvision.transforms import v2
 
@@ -317,7 +323,31 @@ def train_and_score(
         update_seconds += time.perf_counter() - begin
         if step in checkpoints:
             marks[step] = {**evaluate(), "train_l1": float(loss.detach())}
-    return {"update_s": update_seconds / steps, "at": marks}
+    return {"update_s": update_seconds / steps, "at": marks}, encoder
+
+
+def write_starting_policy(config_path: Path, recording: Recording, encoder, out: Path) -> None:
+    """An ACT policy as `config_path`'s `lerobot-train` would build it on this recording, its image backbone the
+    probe's trained one, saved with its processors as a pretrained folder: `lerobot-train
+    --config_path=<config> --policy.path=<out>` starts from it (the second stage of a two-stage training)."""
+    import tempfile
+
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "config.json").write_text(json.dumps(json.loads(config_path.read_text())["policy"]))
+        config = PreTrainedConfig.from_pretrained(tmp)
+    config.device = "cpu"
+    meta = LeRobotDatasetMetadata(recording.repo_id, root=recording.root)
+    policy = make_policy(config, ds_meta=meta)
+    policy.model.backbone.load_state_dict(encoder.backbone.state_dict())  # strict: the same ResNet-18
+    preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=meta.stats)
+    out.mkdir(parents=True, exist_ok=True)
+    policy.save_pretrained(out)
+    preprocessor.save_pretrained(out)
+    postprocessor.save_pretrained(out)
 
 
 def open_dataset(recording: Recording):
@@ -354,6 +384,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--checkpoints", help="update counts to score at (default: a quarter, half and the end)")
     parser.add_argument("--eval-frames", type=int, default=1000)
     parser.add_argument("--out", help="also write the figures to this JSON file")
+    parser.add_argument(
+        "--save-policy",
+        help="write an ACT policy whose backbone is the trained encoder, for lerobot-train --policy.path (one "
+        "dataset, --encoders act, one shift)",
+    )
+    parser.add_argument("--policy-config", help="with --save-policy: the lerobot-train config the policy is built by")
     args = parser.parse_args(argv)
     try:
         encoders = parse_list(args.encoders, str, "--encoders", ", ".join(ENCODERS))
@@ -371,6 +407,18 @@ def main(argv: list[str] | None = None) -> int:
         )
         if any(not 1 <= c <= args.steps for c in checkpoints):
             raise KitbenchError(f"--checkpoints {args.checkpoints!r}: each must be in 1..--steps ({args.steps})")
+        if args.save_policy:
+            if len(args.datasets) != 1 or encoders != ["act"] or len(shifts) != 1:
+                raise KitbenchError("--save-policy needs one dataset, --encoders act and one --shifts value")
+            config = Path(args.policy_config or "")
+            if not args.policy_config or not config.is_file():
+                raise KitbenchError(f"--save-policy needs --policy-config, a lerobot-train config file; got {config}")
+            try:
+                policy_type = json.loads(config.read_text()).get("policy", {}).get("type")
+            except (json.JSONDecodeError, AttributeError):
+                raise KitbenchError(f"--policy-config {config} is not a lerobot-train config (JSON)") from None
+            if policy_type != "act":
+                raise KitbenchError(f"--policy-config {config} trains {policy_type!r}; the probe's encoder is ACT's")
         recordings = [read_recording(root) for root in args.datasets]
     except KitbenchError as exc:
         print(f"perception_probe: error: {exc}", file=sys.stderr)
@@ -391,9 +439,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         for kind in encoders:
             for shift in shifts:
-                result = train_and_score(
+                result, encoder = train_and_score(
                     recording, dataset, kind, shift, args.steps, args.batch, args.lr, checkpoints, train, held
                 )
+                if args.save_policy:
+                    write_starting_policy(Path(args.policy_config), recording, encoder, Path(args.save_policy))
+                    print(f"  starting policy: {args.save_policy}", flush=True)
                 row = {
                     "dataset": name,
                     "camera_size": recording.camera_size,

@@ -114,3 +114,46 @@ def test_a_folder_that_is_not_a_recording_is_one_line(tmp_path, capsys):
     assert main([str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "is not a kitbench recording" in err
+
+
+def test_the_trained_encoder_starts_a_policy_that_stock_lerobot_train_loads(kits_rgb, tmp_path, needs_vulkan):
+    from safetensors.torch import load_file
+
+    from bench.perception_probe import open_dataset, read_recording, split, train_and_score, write_starting_policy
+    from tests.lerobot_cli import lerobot_train
+
+    config = ROOT / "policies" / "act_assembling_kits_rgb_cpu.json"
+    recording = read_recording(kits_rgb)
+    train, held = split(recording, 8)
+    _, encoder = train_and_score(recording, open_dataset(recording), "act", 0.0, 2, 2, 3e-4, [2], train, held)
+    start = tmp_path / "start"
+    write_starting_policy(config, recording, encoder, start)
+    trained = {f"model.backbone.{k}": v for k, v in encoder.backbone.state_dict().items()}
+    saved = load_file(start / "model.safetensors")
+    assert trained.keys() <= saved.keys() and all((saved[k] == v).all() for k, v in trained.items())
+
+    # stock lerobot-train starts from it: at learning rate 0 its checkpoint keeps the probe's backbone exactly
+    tuned = tmp_path / "tuned"
+    frozen = ["--optimizer.lr=0", "--policy.optimizer_lr_backbone=0", "--scheduler.num_warmup_steps=0"]
+    args = ["--steps=1", "--save_freq=1", "--batch_size=2", f"--policy.path={start}", *frozen]
+    lerobot_train(config, kits_rgb, tuned, tmp_path, *args)
+    after = load_file(tuned / "checkpoints" / "last" / "pretrained_model" / "model.safetensors")
+    assert all((after[k] == v).all() for k, v in trained.items())
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--save-policy", "p", "--encoders", "diffusion"], "--save-policy needs one dataset, --encoders act"),
+        (["--save-policy", "p", "--shifts", "0,0.05"], "--save-policy needs one dataset, --encoders act"),
+        (["--save-policy", "p"], "--save-policy needs --policy-config"),
+        (
+            ["--save-policy", "p", "--policy-config", str(ROOT / "policies" / "diffusion_lift_peg_upright_rgb.json")],
+            "trains 'diffusion'; the probe's encoder is ACT's",
+        ),
+    ],
+)
+def test_bad_save_policy_arguments_are_one_line(argv, needle, tmp_path, capsys):
+    assert main([str(tmp_path), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err
