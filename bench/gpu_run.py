@@ -247,7 +247,7 @@ def plan_score(args, out: Path, logs: Path, results: dict) -> None:
     if "startup_seconds" not in results:
         probe = "import torch, lerobot.policies.factory; torch.cuda.is_available() and torch.zeros(1, device='cuda')"
         results["startup_seconds"] = run([sys.executable, "-c", probe], logs / "score_startup.log")
-        # the same again with Python's import clock: where the seconds go, the slowest top-level packages first
+        # the same again with Python's import clock: where the seconds go, package by package
         run([sys.executable, "-X", "importtime", "-c", probe], logs / "score_importtime.log")
         results["startup_imports_s"] = slowest_imports((logs / "score_importtime.log").read_text())
         save(out, "score", results)
@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--demos", type=int, default=50, help="demonstrations recorded per recipe")
     parser.add_argument("--steps", type=int, help="training steps (loader: 600; learn: the config's)")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) - 2), help="recording workers")
-    parser.add_argument("--eval-episodes", type=int, default=200, help="learn: the suite's first N seeds")
+    parser.add_argument("--eval-episodes", type=int, default=200, help="learn, score: the suite's first N seeds")
     parser.add_argument("--eval-batch", type=int, default=10, help="learn: kitbench eval --batch-size")
     parser.add_argument("--pipelines", default="before,after", help="loader: before (stock reader), after (kitbench's)")
     parser.add_argument(
