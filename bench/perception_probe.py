@@ -330,15 +330,12 @@ def write_starting_policy(config_path: Path, recording: Recording, encoder, out:
     """An ACT policy as `config_path`'s `lerobot-train` would build it on this recording, its image backbone the
     probe's trained one, saved with its processors as a pretrained folder: `lerobot-train
     --config_path=<config> --policy.path=<out>` starts from it (the second stage of a two-stage training)."""
-    import tempfile
-
+    import draccus
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
     from lerobot.policies.factory import make_policy, make_pre_post_processors
 
-    with tempfile.TemporaryDirectory() as tmp:
-        (Path(tmp) / "config.json").write_text(json.dumps(json.loads(config_path.read_text())["policy"]))
-        config = PreTrainedConfig.from_pretrained(tmp)
+    config = draccus.decode(PreTrainedConfig, json.loads(config_path.read_text())["policy"])
     config.device = "cpu"
     meta = LeRobotDatasetMetadata(recording.repo_id, root=recording.root)
     policy = make_policy(config, ds_meta=meta)
