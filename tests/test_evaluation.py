@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -20,6 +21,7 @@ from kitbench.evaluation.report import without_timing
 from kitbench.evaluation.runner import pick_video_seeds, run_eval
 from kitbench.evaluation.stats import describe, rate, wilson_interval
 from kitbench.evaluation.suite import Suite, adhoc_suite, load_suite
+from kitbench.tasks.lift_peg_upright import MAX_TILT
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITES = sorted((ROOT / "eval" / "suites").glob("*.toml"))
@@ -203,6 +205,7 @@ REPORT_KEYS = {
     "return",
     "return_by_outcome",
     "failure_categories",
+    "measurements",
     "per_episode",
     "output",
     "timing",
@@ -238,6 +241,18 @@ def test_expert_report_has_every_field_and_scores_like_its_benchmark(expert_repo
         "return.png",
         "steps_to_success.png",
     }
+
+
+def test_the_report_says_where_the_tasks_measurements_start_and_end(expert_report):
+    """The expert stands every lying peg upright: its tilt from vertical starts at a right angle and ends within
+    the success test's; each episode keeps its own start beside its end."""
+    out, report = expert_report
+    tilt = report["measurements"]["tilt"]
+    assert tilt["start"]["n"] == tilt["end"]["n"] == 6 and tilt["end_of_failures"] is None
+    assert tilt["start"]["min"] > math.radians(80) and tilt["end"]["max"] < MAX_TILT
+    for episode in report["per_episode"]:
+        assert episode["initial"]["tilt"] > math.radians(80) and not episode["initial"]["success"]
+    assert "## The task's measurements at the start and the end" in (out / "report.md").read_text()
 
 
 def test_random_policy_scores_zero_and_failures_are_categorised(tmp_path):

@@ -35,6 +35,7 @@ class EpisodeResult:
     physics_error: str | None = None  # what went wrong when the simulation failed (`info["physics_error"]`)
     success_once: bool = False  # successful at some step
     success_at_end: bool = False  # successful at the last step
+    initial: dict = field(default_factory=dict)  # the task's measurements after the reset, as `final`'s
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -58,9 +59,11 @@ class EpisodeScore(Hook):
         self.history = GraspHistory()
         self.total = 0.0
         self.episode: Episode | None = None
+        self.initial: dict = {}
 
     def on_reset(self, episode: Episode) -> None:
         self.episode = episode
+        self.initial = _scalars(episode.info)
 
     def after_step(self, episode: Episode, step: Step) -> None:
         self.total += step.reward
@@ -86,6 +89,7 @@ class EpisodeScore(Hook):
             physics_error=info.get("physics_error"),
             success_once=first is not None,
             success_at_end=at_end,
+            initial=self.initial,
         )
 
 

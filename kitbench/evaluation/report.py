@@ -24,7 +24,8 @@ from kitbench.registration import task_entry
 
 # 2: `headline`, `success_once`, `success_at_end` (overall, per group, per episode), suite `settle_steps` and
 # `perturbations`, `robustness`
-REPORT_VERSION = 2
+# 3: per episode `initial` (the task's measurements after the reset); `measurements` (each at the start and the end)
+REPORT_VERSION = 3
 
 
 def _timing_parts(timing: dict) -> str:
@@ -108,6 +109,21 @@ def _condition(name: str, level: float, results: list[EpisodeResult], nominal: l
     }
 
 
+def measurements(results: list[EpisodeResult]) -> dict:
+    """Each scalar measurement the task reports (errors, tilt, ...; not its booleans) at the start and the end of
+    the episodes, and at the end of the failures: how far a policy moved what the success test measures."""
+    names = [k for k, v in (results[0].final if results else {}).items() if isinstance(v, float)]
+    failures = [r for r in results if not r.success]
+    return {
+        name: {
+            "start": describe(r.initial[name] for r in results if name in r.initial),
+            "end": describe(r.final[name] for r in results if name in r.final),
+            "end_of_failures": describe(r.final[name] for r in failures if name in r.final),
+        }
+        for name in names
+    }
+
+
 def build_report(
     suite: Suite,
     policy: str,
@@ -141,6 +157,7 @@ def build_report(
             "failure": describe(r.episode_return for r in results if not r.success),
         },
         "failure_categories": categories,
+        "measurements": measurements(results),
         "per_episode": [r.to_dict() for r in results],
     }
     if env_class.report_groups is not None:
@@ -180,6 +197,10 @@ def write_json(report: dict, path: Path) -> None:
 def _pct(r: dict) -> str:
     lo, hi = r["ci95"]
     return f"{r['rate']:.1%} ({r['count']}/{r['episodes']}; 95% CI {lo:.1%}–{hi:.1%})"
+
+
+def _spread(d: dict | None) -> str:
+    return "–" if d is None else f"{d['median']:.3g} ({d['p10']:.3g}–{d['p90']:.3g})"
 
 
 def _dist_row(name: str, d: dict | None, unit: str = "") -> str:
@@ -289,6 +310,18 @@ def markdown(report: dict) -> str:
         "|---|---|",
         *[f"| {c} | {n} |" for c, n in report["failure_categories"].items()],
     ]
+    if report.get("measurements"):
+        lines += [
+            "",
+            "## The task's measurements at the start and the end",
+            "",
+            "| measurement | start, median (p10–p90) | end | end of failures |",
+            "|---|---|---|---|",
+            *[
+                f"| {name} | " + " | ".join(_spread(m[when]) for when in ("start", "end", "end_of_failures")) + " |"
+                for name, m in report["measurements"].items()
+            ],
+        ]
     table = group_table(report)
     if table is not None:
         id_key, name, rows = table
