@@ -8,6 +8,8 @@ pixels of it? For each expert phase and camera it prints the frames, the pixels 
 when it is out of view or hidden) and, for every other frame the task tracks (AssemblingKits: its kit and `goal`,
 the slot the shape goes into), the share of frames whose origin projects into the image (`in view`) and of those
 where that pixel shows neither the robot nor the target object (`seen`: not behind the arm or the held object).
+`cut` is the share of frames where the target object touches the image's edge (part of it may be outside the
+picture), `hidden` where none of its pixels shows: what a tighter framing (`--camera-view`) must not raise.
 The counts come from the segmentation the cameras render at the size asked, the pixels of the rgb images a
 policy gets at that size. Seeds 0.. are the recipes' training seeds, the suites start at 1,000,000.
 Exit status: 2 for a bad argument.
@@ -71,7 +73,9 @@ def measure(
     target_name = u.target_object.name
     target = np.array([i for i, n in names.items() if n == target_name])
     hiding = np.array([i for i, n in names.items() if n in links or n == target_name])  # what covers a frame
-    rows: dict = defaultdict(lambda: defaultdict(lambda: {"frames": 0, "object_px": [], "in_view": {}, "seen": {}}))
+    rows: dict = defaultdict(
+        lambda: defaultdict(lambda: {"frames": 0, "object_px": [], "cut": 0, "in_view": {}, "seen": {}})
+    )
     order: Sequence[str] = ()
     try:
         for seed in seeds:
@@ -88,7 +92,9 @@ def measure(
                     params = {**obs["sensor_param"][camera], "height": label.shape[0], "width": label.shape[1]}
                     row = rows[expert.phase or "done"][camera]
                     row["frames"] += 1
-                    row["object_px"].append(int(np.isin(label, target).sum()))
+                    mask = np.isin(label, target)
+                    row["object_px"].append(int(mask.sum()))
+                    row["cut"] += bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
                     for name, point in frames.items():
                         pixel = _project(params, point)
                         row["in_view"][name] = row["in_view"].get(name, 0) + (pixel is not None)
@@ -122,6 +128,8 @@ def summarize(measured: dict) -> list[dict]:
                     "camera": camera,
                     "frames": n,
                     "object_px": float(np.median(row["object_px"])),
+                    "cut": row["cut"] / n,
+                    "hidden": sum(px == 0 for px in row["object_px"]) / n,
                     "in_view": {k: v / n for k, v in row["in_view"].items()},
                     "seen": {k: v / n for k, v in row["seen"].items()},
                 }
@@ -131,15 +139,17 @@ def summarize(measured: dict) -> list[dict]:
 
 def print_table(rows: list[dict], target: str) -> None:
     tracked = sorted({k for r in rows for k in r["in_view"]})
-    head = f"{'phase':<10} {'camera':<13} {'frames':>6}  {target + ' px':>{max(9, len(target) + 3)}}"
+    head = f"{'phase':<10} {'camera':<13} {'frames':>6}  {target + ' px':>{max(9, len(target) + 3)}}    cut  hidden"
     print(head + "".join(f"  {name + ' in view / seen':>22}" for name in tracked))
     for r in rows:
         line = f"{r['phase']:<10} {r['camera']:<13} {r['frames']:>6}  {r['object_px']:>{max(9, len(target) + 3)}.0f}"
+        line += f"  {r['cut']:>5.0%}  {r['hidden']:>6.0%}"
         line += "".join(f"  {r['in_view'][k]:>12.0%} / {r['seen'][k]:>5.0%}" for k in tracked)
         print(line)
     print(
-        f"({target} px: median pixels of the target object; in view: its origin projects into the image; seen: "
-        "and that pixel shows neither the robot nor the target object)"
+        f"({target} px: median pixels of the target object; cut: it touches the image's edge; hidden: none of it "
+        "shows; in view: a frame's origin projects into the image; seen: and that pixel shows neither the robot nor "
+        "the target object)"
     )
 
 

@@ -65,7 +65,7 @@ def test_a_view_is_the_tasks_sensor_configs_beside_the_size():
     ("settings", "message"),
     [
         ({"task": AK, "camera_view": "top"}, "'top' is not one of AssemblingKits-v1's; valid choices: board"),
-        ({"task": LPU, "camera_view": "board"}, "valid choices: (none: the task declares no other view)"),
+        ({"task": LPU, "camera_view": "board"}, "'board' is not one of LiftPegUpright-v1's; valid choices: peg"),
         ({"task": AK, "robot": "so101", "camera_view": "board"}, "which robot so101 replaces with its own"),
     ],
 )
@@ -95,6 +95,38 @@ def test_the_board_view_puts_more_of_the_board_in_the_picture(needs_vulkan):
 
     own, board = pixels(None), pixels("board")
     assert (board > 2 * own).all(), (own, board)
+
+
+def test_the_peg_view_shows_the_whole_peg_larger_where_it_lies_and_where_it_stands(needs_vulkan):
+    """What LiftPegUpright's view is for: at 64x64 the peg on several times the pixels of the task's own framing,
+    and never cut by the picture's edge, lying at each corner of its spawn square, standing upright there and where
+    the swing ends."""
+    from kitbench.sim.scene import set_actor_pose
+    from kitbench.tasks.lift_peg_upright import LYING_QUAT, PEG_HALF_LENGTH, PEG_HALF_WIDTH, SPAWN_HALF_WIDTH
+
+    standing = (math.cos(math.pi / 4), 0.0, -math.sin(math.pi / 4), 0.0)  # the long (x) axis turned to world z
+    corners = [(x, y) for x in (-SPAWN_HALF_WIDTH, SPAWN_HALF_WIDTH) for y in (-SPAWN_HALF_WIDTH, SPAWN_HALF_WIDTH)]
+    poses = [([x, y, z], q) for x, y in corners for z, q in ((PEG_HALF_WIDTH, LYING_QUAT), (PEG_HALF_LENGTH, standing))]
+    # the expert's swing ends up to 22 cm towards the arm, the peg's centre up to 1 cm above its upright height
+    poses += [([-0.22, y, PEG_HALF_LENGTH + 0.01], standing) for y in (-SPAWN_HALF_WIDTH, SPAWN_HALF_WIDTH)]
+
+    def masks(camera_view):
+        sensors = PolicyEnvSettings(task=LPU, camera_size="64", camera_view=camera_view).sensor_configs
+        env = gym.make(f"kitbench/{LPU}", obs_mode="segmentation", sensor_configs=sensors)
+        env.reset(seed=0)
+        peg = [i for i, name in env.unwrapped.segmentation_id_map.items() if name == "peg"]
+        out = []
+        for position, quaternion in poses:
+            set_actor_pose(env.unwrapped.peg, position, quaternion)
+            obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))  # the arm held still
+            out.append(np.isin(obs["sensor_data"]["base_camera"]["segmentation"][..., 0], peg))
+        env.close()
+        return out
+
+    own, close = masks(None), masks("peg")
+    assert sum(m.sum() for m in close) > 4 * sum(m.sum() for m in own)
+    for pose, mask in zip(poses, close, strict=True):
+        assert mask.any() and not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any()), pose
 
 
 def test_a_recording_keeps_its_view(needs_vulkan, tmp_path):

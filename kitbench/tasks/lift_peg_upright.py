@@ -19,7 +19,7 @@ from kitbench.envs.observations import pose7
 from kitbench.envs.tabletop import TabletopEnv
 from kitbench.geometry import quat_to_matrix, tilt_from_vertical
 from kitbench.registration import register_env
-from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec
+from kitbench.sim.cameras import OBSERVATION_SIZE, CameraSpec, view
 from kitbench.sim.scene import set_actor_pose
 
 PEG_HALF_WIDTH = 0.025
@@ -83,6 +83,12 @@ class LiftPegUprightEnv(TabletopEnv):
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
     failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
+    # "peg": the base camera lower, nearer and narrower (55 degrees, not 90), framing the spawn square and the swing
+    # upright: the peg on 4.3-4.8x the pixels of the task's own framing, never cut by the picture's edge along the
+    # expert's episodes (bench/camera_view.py); the CPU image config's recording (docs/observations.md)
+    camera_views: ClassVar[dict] = {
+        "peg": {"base_camera": view([0.40, 0.0, 0.45], [-0.02, 0.0, 0.05], math.radians(55))}
+    }
     expert: ClassVar[dict[str, str | type]] = {
         "panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner",
         "fetch": "kitbench.planning.lift_peg_upright_fetch:FetchLiftPegUprightPlanner",
