@@ -2,14 +2,17 @@
 
     python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
+        [--targets goal,yaw,shape,turn]
         [--save-policy DIR --policy-config policies/act_assembling_kits_rgb_cpu.json]
 
 An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
 use it. This separates the two. For every dataset x encoder x shift it trains the encoder, built by lerobot's own
 classes as the policy builds it, from scratch, with a small head that regresses from the recording's cameras (every
 camera through the one shared encoder, as both policies share it) what the expert's transport depends on: the
-slot's position (`goal_xy`), its yaw folded by the shape's symmetry (`goal_yaw_sym`) and the loose shape's
-position. Nothing but the images goes in. It then scores the held-out episodes (the last 10% of the recording):
+slot's position (`goal_xy`), its yaw folded by the shape's symmetry (`goal_yaw_sym`), the loose shape's
+position, and the turn the shape still needs to fit its slot (`obj_to_goal_yaw`, folded likewise: what the hand's
+turn in the transport depends on). Nothing but the images goes in; `--targets` trains on a subset. It then scores
+the held-out episodes (the last 10% of the recording):
 
 - slot: the predicted slot position's error (mm, median / p90), and how often the slot nearest to the prediction is
   the right one of the kit's five (`right slot`). A kit has empty pockets besides the target's; `chance` is what
@@ -17,6 +20,8 @@ position. Nothing but the images goes in. It then scores the held-out episodes (
 - yaw: the slot's yaw error (degrees, median) and the share within the success test's 4 degrees, for the shapes
   whose yaw matters (not the disc or ring).
 - shape: the loose shape's position error (mm, median).
+- turn: the error of the turn still needed (degrees, median), the share within 4 degrees, and the median over the
+  frames where more than 4 degrees are still to turn (`turning`: before the expert has turned the shape).
 
 Encoders: `act` (ACT's backbone: ResNet-18 with frozen batch norm, its layer-4 map, then a 1x1 projection, as
 ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_stride_with_dilation` raises for a
@@ -59,7 +64,9 @@ TARGETS = {
     "goal": ("goal_xy.0", "goal_xy.1"),
     "yaw": ("goal_yaw_sym.0", "goal_yaw_sym.1"),
     "shape": ("obj_pose.x", "obj_pose.y"),
+    "turn": ("obj_to_goal_yaw.0", "obj_to_goal_yaw.1"),
 }
+COLUMNS = {name: slice(2 * i, 2 * i + 2) for i, name in enumerate(TARGETS)}  # each target's columns of `targets`
 HELD_OUT = 0.1  # the share of the recording's episodes, its last ones, scored and never trained on
 PROJECTED = 32  # channels of ACT's feature map kept a cell (ACT projects to its model width; the head stays small)
 HIDDEN = 256
@@ -76,7 +83,7 @@ class Recording:
     image_shape: tuple[int, int, int]  # C, H, W
     camera_size: str
     camera_view: str | None
-    targets: np.ndarray  # frames x 6: goal x y, folded yaw cos sin, shape x y
+    targets: np.ndarray  # frames x 8: goal x y, folded yaw cos sin, shape x y, folded turn cos sin
     episode_of: np.ndarray  # frame -> episode index
     slots: dict[int, np.ndarray]  # episode index -> its kit's slot positions (5 x 2)
     target_slot: dict[int, int]  # episode index -> the index of the slot its shape goes into
@@ -209,24 +216,32 @@ def _folded_yaw_error(pred: np.ndarray, true: np.ndarray, symmetry: float) -> fl
 
 
 def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> dict:
-    """The held-out figures of predictions (frames x 6, in the targets' units) of `frames`."""
+    """The held-out figures of predictions (frames x 8, in the targets' units) of `frames`."""
     true = recording.targets[frames]
-    goal_err = np.linalg.norm(predicted[:, :2] - true[:, :2], axis=1) * 1000
-    shape_err = np.linalg.norm(predicted[:, 4:6] - true[:, 4:6], axis=1) * 1000
-    right, yaw = [], []
+    goal, yaw_cols, shape, turn_cols = (COLUMNS[name] for name in TARGETS)
+    goal_err = np.linalg.norm(predicted[:, goal] - true[:, goal], axis=1) * 1000
+    shape_err = np.linalg.norm(predicted[:, shape] - true[:, shape], axis=1) * 1000
+    right, yaw, turn, turning = [], [], [], []
     for row, frame in enumerate(frames):
         episode = int(recording.episode_of[frame])
-        nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, :2], axis=1)))
+        nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, goal], axis=1)))
         right.append(nearest == recording.target_slot[episode])
-        if recording.symmetry[episode] > 0:
-            yaw.append(_folded_yaw_error(predicted[row, 2:4], true[row, 2:4], recording.symmetry[episode]))
-    yaws = np.array(yaw) if yaw else np.array([np.nan])
+        symmetry = recording.symmetry[episode]
+        if symmetry > 0:
+            yaw.append(_folded_yaw_error(predicted[row, yaw_cols], true[row, yaw_cols], symmetry))
+            turn.append(_folded_yaw_error(predicted[row, turn_cols], true[row, turn_cols], symmetry))
+            if _folded_yaw_error(true[row, turn_cols], np.array([1.0, 0.0]), symmetry) > YAW_TOLERANCE:
+                turning.append(turn[-1])
+    yaws, turns, still = (np.array(v) if v else np.array([np.nan]) for v in (yaw, turn, turning))
     return {
         "goal_mm": [float(np.median(goal_err)), float(np.percentile(goal_err, 90))],
         "right_slot": float(np.mean(right)),
         "yaw_deg": float(np.median(yaws)),
         "yaw_within_4deg": float(np.mean(yaws <= YAW_TOLERANCE)),
         "shape_mm": float(np.median(shape_err)),
+        "turn_deg": float(np.median(turns)),
+        "turn_within_4deg": float(np.mean(turns <= YAW_TOLERANCE)),
+        "turning_deg": float(np.median(still)),
     }
 
 
@@ -262,9 +277,10 @@ def train_and_score(
     train: np.ndarray,
     held: np.ndarray,
     seed: int = 1000,
+    targets: tuple[str, ...] = tuple(TARGETS),
 ) -> tuple[dict, object]:
-    """Train the encoder and head from scratch on the `train` frames; score the `held` ones at each of
-    `checkpoints` (update counts). Returns the figures and the trained encoder."""
+    """Train the encoder and head from scratch on the `train` frames, its loss over `targets` only; score the
+    `held` ones at each of `checkpoints` (update counts). Returns the figures and the trained encoder."""
     import torch
     from torchvision.transforms import v2
 
@@ -272,7 +288,13 @@ def train_and_score(
     rng = np.random.default_rng(seed)
     encoder, width = build_encoder(encoder_kind, recording.image_shape)
     head = torch.nn.Sequential(
-        torch.nn.Linear(width * len(recording.cameras), HIDDEN), torch.nn.ReLU(), torch.nn.Linear(HIDDEN, 6)
+        torch.nn.Linear(width * len(recording.cameras), HIDDEN),
+        torch.nn.ReLU(),
+        torch.nn.Linear(HIDDEN, 2 * len(targets)),
+    )
+    # the trained targets' columns, in TARGETS' order; an untrained target is predicted as its training mean
+    trained = torch.from_numpy(
+        np.concatenate([np.arange(recording.targets.shape[1])[COLUMNS[t]] for t in TARGETS if t in targets])
     )
     params = [*encoder.parameters(), *head.parameters()]
     optimizer = torch.optim.AdamW(params, lr=lr, weight_decay=1e-4)
@@ -304,7 +326,11 @@ def train_and_score(
         encoder.eval()
         head.eval()
         with torch.no_grad():
-            out = [forward(images(held[i : i + 64], augment=False)) * sigma + mu for i in range(0, len(held), 64)]
+            out = []
+            for i in range(0, len(held), 64):
+                predicted = mu.repeat(len(held[i : i + 64]), 1)
+                predicted[:, trained] = forward(images(held[i : i + 64], augment=False)) * sigma[trained] + mu[trained]
+                out.append(predicted)
         encoder.train()
         head.train()
         return score(recording, held, torch.cat(out).numpy())
@@ -316,7 +342,7 @@ def train_and_score(
         per_camera = images(frames, augment=True)
         target = (torch.from_numpy(recording.targets[frames]) - mu) / sigma
         begin = time.perf_counter()
-        loss = torch.nn.functional.l1_loss(forward(per_camera), target)
+        loss = torch.nn.functional.l1_loss(forward(per_camera), target[:, trained])
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -382,6 +408,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-frames", type=int, default=1000)
     parser.add_argument("--out", help="also write the figures to this JSON file")
     parser.add_argument(
+        "--targets", default=",".join(TARGETS), help=f"what the encoder is trained to read, of {', '.join(TARGETS)}"
+    )
+    parser.add_argument(
         "--save-policy",
         help="write an ACT policy whose backbone is the trained encoder, for lerobot-train --policy.path (one "
         "dataset, --encoders act, one shift)",
@@ -393,6 +422,10 @@ def main(argv: list[str] | None = None) -> int:
         for kind in encoders:
             if kind not in ENCODERS:
                 raise KitbenchError(f"--encoders: unknown encoder {kind!r}; valid choices: {', '.join(ENCODERS)}")
+        targets = tuple(parse_list(args.targets, str, "--targets", ", ".join(TARGETS)))
+        for name in targets:
+            if name not in TARGETS:
+                raise KitbenchError(f"--targets: unknown target {name!r}; valid choices: {', '.join(TARGETS)}")
         shifts = parse_list(args.shifts, float, "--shifts", "numbers in 0..0.5")
         if any(not 0 <= s <= 0.5 for s in shifts):
             raise KitbenchError(f"--shifts {args.shifts!r}: each must be in 0..0.5")
@@ -431,13 +464,25 @@ def main(argv: list[str] | None = None) -> int:
             f"{name}: {recording.camera_size} {view} view, {', '.join(c[len(IMAGES) :] for c in recording.cameras)}; "
             f"{len(train)} training frames, {len(held)} held-out; mean predictor: slot "
             f"{base['mean']['goal_mm'][0]:.0f} mm, right slot {base['mean']['right_slot']:.0%}, shape "
-            f"{base['mean']['shape_mm']:.0f} mm; an empty pocket at random: right slot {base['chance_right_slot']:.0%}",
+            f"{base['mean']['shape_mm']:.0f} mm, turn {base['mean']['turn_deg']:.0f} deg "
+            f"({base['mean']['turning_deg']:.0f} turning); an empty pocket at random: "
+            f"right slot {base['chance_right_slot']:.0%}",
             flush=True,
         )
         for kind in encoders:
             for shift in shifts:
                 result, encoder = train_and_score(
-                    recording, dataset, kind, shift, args.steps, args.batch, args.lr, checkpoints, train, held
+                    recording,
+                    dataset,
+                    kind,
+                    shift,
+                    args.steps,
+                    args.batch,
+                    args.lr,
+                    checkpoints,
+                    train,
+                    held,
+                    targets=targets,
                 )
                 if args.save_policy:
                     write_starting_policy(Path(args.policy_config), recording, encoder, Path(args.save_policy))
@@ -448,16 +493,23 @@ def main(argv: list[str] | None = None) -> int:
                     "camera_view": view,
                     "encoder": kind,
                     "shift": shift,
+                    "targets": list(targets),
                     **result,
                     "baseline": base,
                 }
                 rows.append(row)
                 for step, m in result["at"].items():
+                    parts = {
+                        "goal": f"slot {m['goal_mm'][0]:5.1f} / {m['goal_mm'][1]:5.1f} mm, right slot "
+                        f"{m['right_slot']:4.0%}",
+                        "yaw": f"yaw {m['yaw_deg']:5.1f} deg ({m['yaw_within_4deg']:4.0%} within 4)",
+                        "shape": f"shape {m['shape_mm']:5.1f} mm",
+                        "turn": f"turn {m['turn_deg']:5.1f} deg ({m['turn_within_4deg']:4.0%} within 4; "
+                        f"{m['turning_deg']:5.1f} turning)",
+                    }
+                    figures = ", ".join(parts[t] for t in TARGETS if t in targets)
                     print(
-                        f"  {kind:<12} shift {shift:<5g} {step:>6} updates: slot {m['goal_mm'][0]:5.1f} / "
-                        f"{m['goal_mm'][1]:5.1f} mm, right slot {m['right_slot']:4.0%}, yaw {m['yaw_deg']:5.1f} deg "
-                        f"({m['yaw_within_4deg']:4.0%} within 4), shape {m['shape_mm']:5.1f} mm, "
-                        f"train L1 {m['train_l1']:.3f}",
+                        f"  {kind:<12} shift {shift:<5g} {step:>6} updates: {figures}, train L1 {m['train_l1']:.3f}",
                         flush=True,
                     )
                 print(f"  {kind:<12} shift {shift:<5g} {result['update_s']:.3f} s an update", flush=True)

@@ -3,6 +3,7 @@ recording's cameras, scored on held-out episodes."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -20,7 +21,7 @@ def _recording(symmetry: float) -> Recording:
     slots = np.array([[0.0, 0.05 * i] for i in range(5)])
     goal, yaw = slots[2], 0.0
     k = 2 * math.pi / symmetry if symmetry > 0 else 0.0
-    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1]
+    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1, 1.0, 0.0]  # no turn left
     return Recording(
         root=Path("."),
         cameras=("observation.images.base_camera",),
@@ -49,13 +50,34 @@ def test_the_slot_figures_measure_what_they_name():
     assert exact["goal_mm"] == [0.0, 0.0] and exact["right_slot"] == 1.0 and exact["shape_mm"] == 0.0
     assert exact["yaw_deg"] == pytest.approx(0.0, abs=1e-6) and exact["yaw_within_4deg"] == 1.0
     # 2 cm off towards the next slot is still nearest the right one; 3 cm off is nearer the next
-    near = np.array([[0.0, 0.12, *_folded(90.0, square), 0.1, -0.1], [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08]])
+    near = np.array(
+        [
+            [0.0, 0.12, *_folded(90.0, square), 0.1, -0.1, *_folded(3.0, square)],
+            [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08, *_folded(-10.0, square)],
+        ]
+    )
     figures = score(recording, frames, near)
     assert figures["goal_mm"][0] == pytest.approx(25.0, abs=1e-3)
     assert figures["right_slot"] == 0.5
     # a quarter turn is the same fit for a square; an eighth is as far off as a square can be
     assert figures["yaw_deg"] == pytest.approx(22.5, abs=1e-3) and figures["yaw_within_4deg"] == 0.5
     assert figures["shape_mm"] == pytest.approx(10.0, abs=1e-3)
+    # the turn still needed, folded as the yaw: 3 and 10 degrees off a shape already turned to fit
+    assert figures["turn_deg"] == pytest.approx(6.5, abs=1e-3) and figures["turn_within_4deg"] == 0.5
+    assert math.isnan(figures["turning_deg"])  # no frame has more than 4 degrees still to turn
+
+
+def test_the_turning_figure_counts_only_frames_still_to_turn():
+    square = math.pi / 2
+    recording = _recording(square)
+    still = recording.targets.copy()
+    still[1, 6:8] = _folded(30.0, square)  # the second frame has 30 degrees still to turn
+    recording = dataclasses.replace(recording, targets=still)
+    predicted = still.astype(np.float64)
+    predicted[:, 6:8] = [_folded(1.0, square), _folded(20.0, square)]
+    figures = score(recording, np.array([0, 1]), predicted)
+    assert figures["turning_deg"] == pytest.approx(10.0, abs=1e-3)
+    assert figures["turn_deg"] == pytest.approx(5.5, abs=1e-3)
 
 
 def test_a_shape_any_yaw_fits_has_no_yaw_figure():
@@ -94,11 +116,18 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(kits_rgb, tm
         assert 0.0 < row["baseline"]["chance_right_slot"] <= 1.0
     assert "right slot" in capsys.readouterr().out
 
+    # trained on the turn alone, the probe says only what it trained
+    assert main([str(kits_rgb), "--targets", "turn", "--steps", "1", "--eval-frames", "4", "--out", str(report)]) == 0
+    printed = capsys.readouterr().out
+    assert "turning)" in printed and "right slot" not in printed.split("mean predictor")[1].split("\n", 1)[1]
+    assert json.loads(report.read_text())["rows"][0]["targets"] == ["turn"]
+
 
 @pytest.mark.parametrize(
     ("argv", "needle"),
     [
         (["--encoders", "act,vit"], "unknown encoder 'vit'; valid choices: act, diffusion"),
+        (["--targets", "goal,roll"], "unknown target 'roll'; valid choices: goal, yaw, shape, turn"),
         (["--shifts", "0.9"], "--shifts '0.9': each must be in 0..0.5"),
         (["--shifts", "x"], "--shifts 'x' is not a comma-separated list"),
         (["--steps", "10", "--checkpoints", "20"], "--checkpoints '20': each must be in 1..--steps (10)"),
