@@ -186,7 +186,7 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     train_dir = Path("outputs/train") / name
     suite = Path("eval/suites") / f"{entry.suites[0]}.toml"
     threads = train_threads(config, entry.threads)
-    published = f"{entry.rate:.0%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
+    published = f"{entry.rate:.1%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
     if entry.reference_seconds:
         here = reference_seconds(int(threads)) if reference_s is None else reference_s
         minutes = f"about {scaled_minutes(entry.train_minutes, entry.reference_seconds, here):.0f} min of training here"
