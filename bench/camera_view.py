@@ -44,6 +44,11 @@ def _project(params: dict, point: np.ndarray) -> tuple[int, int] | None:
     return (column, row) if 0 <= column < params["width"] and 0 <= row < params["height"] else None
 
 
+def touches_edge(mask: np.ndarray) -> bool:
+    """Whether a (H, W) mask has a pixel on the image's border: the object may be cut by the picture's edge."""
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
 def measure(
     task: str,
     seeds: Sequence[int],
@@ -94,7 +99,7 @@ def measure(
                     row["frames"] += 1
                     mask = np.isin(label, target)
                     row["object_px"].append(int(mask.sum()))
-                    row["cut"] += bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+                    row["cut"] += touches_edge(mask)
                     for name, point in frames.items():
                         pixel = _project(params, point)
                         row["in_view"][name] = row["in_view"].get(name, 0) + (pixel is not None)

@@ -293,9 +293,7 @@ def train_and_score(
         torch.nn.Linear(HIDDEN, 2 * len(targets)),
     )
     # the trained targets' columns, in TARGETS' order; an untrained target is predicted as its training mean
-    trained = torch.from_numpy(
-        np.concatenate([np.arange(recording.targets.shape[1])[COLUMNS[t]] for t in TARGETS if t in targets])
-    )
+    trained = torch.tensor([c for t in TARGETS if t in targets for c in range(COLUMNS[t].start, COLUMNS[t].stop)])
     params = [*encoder.parameters(), *head.parameters()]
     optimizer = torch.optim.AdamW(params, lr=lr, weight_decay=1e-4)
     mu = torch.from_numpy(recording.targets[train].mean(axis=0))
@@ -328,8 +326,9 @@ def train_and_score(
         with torch.no_grad():
             out = []
             for i in range(0, len(held), 64):
-                predicted = mu.repeat(len(held[i : i + 64]), 1)
-                predicted[:, trained] = forward(images(held[i : i + 64], augment=False)) * sigma[trained] + mu[trained]
+                frames = held[i : i + 64]
+                predicted = mu.repeat(len(frames), 1)
+                predicted[:, trained] = forward(images(frames, augment=False)) * sigma[trained] + mu[trained]
                 out.append(predicted)
         encoder.train()
         head.train()
