@@ -2,7 +2,7 @@
 
     python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
-        [--targets goal,yaw,shape,turn]
+        [--targets goal,yaw,shape,turn,shape_yaw,grip] [--with-state]
         [--save-policy DIR --policy-config policies/act_assembling_kits_rgb_cpu.json]
 
 An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
@@ -10,9 +10,13 @@ use it. This separates the two. For every dataset x encoder x shift it trains th
 classes as the policy builds it, from scratch, with a small head that regresses from the recording's cameras (every
 camera through the one shared encoder, as both policies share it) what the expert's transport depends on: the
 slot's position (`goal_xy`), its yaw folded by the shape's symmetry (`goal_yaw_sym`), the loose shape's
-position, and the turn the shape still needs to fit its slot (`obj_to_goal_yaw`, folded likewise: what the hand's
-turn in the transport depends on). Nothing but the images goes in; `--targets` trains on a subset. It then scores
-the held-out episodes (the last 10% of the recording):
+position, the turn the shape still needs to fit its slot (`obj_to_goal_yaw`, folded likewise: what the hand's
+turn in the transport depends on), and the two yaws that turn is made of: the loose shape's own (`obj_yaw_sym`) and
+the shape's yaw in the hand (`tcp_to_obj_yaw`, folded by a half turn, as the fingers close). Nothing but the images
+goes in, unless `--with-state` adds the arm's own state (joints and gripper, as the policy reads it) beside the
+encoder's features: the hand's yaw is in the joints, so the turn needs the images to give only the shape's yaw in
+the hand and the slot's. `--targets` trains on a subset. It then scores the held-out episodes (the last 10% of the
+recording):
 
 - slot: the predicted slot position's error (mm, median / p90), and how often the slot nearest to the prediction is
   the right one of the kit's five (`right slot`). A kit has empty pockets besides the target's; `chance` is what
@@ -22,6 +26,8 @@ the held-out episodes (the last 10% of the recording):
 - shape: the loose shape's position error (mm, median).
 - turn: the error of the turn still needed (degrees, median), the share within 4 degrees, and the median over the
   frames where more than 4 degrees are still to turn (`turning`: before the expert has turned the shape).
+- shape_yaw, grip: the loose shape's yaw error and the error of its yaw in the hand (degrees, median), each with the
+  share within 4 degrees.
 
 Encoders: `act` (ACT's backbone: ResNet-18 with frozen batch norm, its layer-4 map, then a 1x1 projection, as
 ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_stride_with_dilation` raises for a
@@ -65,7 +71,12 @@ TARGETS = {
     "yaw": ("goal_yaw_sym.0", "goal_yaw_sym.1"),
     "shape": ("obj_pose.x", "obj_pose.y"),
     "turn": ("obj_to_goal_yaw.0", "obj_to_goal_yaw.1"),
+    "shape_yaw": ("obj_yaw_sym.0", "obj_yaw_sym.1"),
+    "grip": ("tcp_to_obj_yaw.0", "tcp_to_obj_yaw.1"),
 }
+# the yaw targets (all but `turning`'s, scored as the others) and the symmetry each is folded by: None, the shape's
+YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": math.pi}
+STATE = "observation.state"
 COLUMNS = {name: slice(2 * i, 2 * i + 2) for i, name in enumerate(TARGETS)}  # each target's columns of `targets`
 HELD_OUT = 0.1  # the share of the recording's episodes, its last ones, scored and never trained on
 PROJECTED = 32  # channels of ACT's feature map kept a cell (ACT projects to its model width; the head stays small)
@@ -83,13 +94,14 @@ class Recording:
     image_shape: tuple[int, int, int]  # C, H, W
     camera_size: str
     camera_view: str | None
-    targets: np.ndarray  # frames x 8: goal x y, folded yaw cos sin, shape x y, folded turn cos sin
+    targets: np.ndarray  # frames x 12: goal x y, then cos sin or x y of each of TARGETS in its order
     episode_of: np.ndarray  # frame -> episode index
     slots: dict[int, np.ndarray]  # episode index -> its kit's slot positions (5 x 2)
     target_slot: dict[int, int]  # episode index -> the index of the slot its shape goes into
     empty: dict[int, int]  # episode index -> empty pockets of its kit (the target's included)
     symmetry: dict[int, float]  # episode index -> its shape's rotational symmetry (rad; 0: any yaw fits)
     repo_id: str = f"kitbench/{TASK}"
+    state: np.ndarray | None = None  # frames x the arm's state (joints, gripper): what --with-state adds
 
 
 def read_recording(root: Path) -> Recording:
@@ -117,10 +129,11 @@ def read_recording(root: Path) -> Recording:
     import pyarrow.parquet as pq
 
     table = pq.read_table(
-        sorted((root / "data").rglob("*.parquet")), columns=[ENVIRONMENT_STATE, "episode_index", "index"]
+        sorted((root / "data").rglob("*.parquet")), columns=[ENVIRONMENT_STATE, STATE, "episode_index", "index"]
     )
     order = np.argsort(column_array(table.column("index")), kind="stable")  # row i is the dataset's frame i
     state = column_array(table.column(ENVIRONMENT_STATE))[order].astype(np.float32)
+    arm = column_array(table.column(STATE))[order].astype(np.float32)
     episode_of = column_array(table.column("episode_index"))[order].astype(np.int64)
     kits = _load(None, ROBOT_VARIANTS.get(recording.robot or "", KitVariant()).scale)
     slots, target_slot, empty, symmetry = {}, {}, {}, {}
@@ -144,6 +157,7 @@ def read_recording(root: Path) -> Recording:
         empty=empty,
         symmetry=symmetry,
         repo_id=recording.repo_id or f"kitbench/{TASK}",
+        state=arm,
     )
 
 
@@ -216,33 +230,37 @@ def _folded_yaw_error(pred: np.ndarray, true: np.ndarray, symmetry: float) -> fl
 
 
 def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> dict:
-    """The held-out figures of predictions (frames x 8, in the targets' units) of `frames`."""
+    """The held-out figures of predictions (frames x 12, in the targets' units) of `frames`."""
     true = recording.targets[frames]
-    goal, yaw_cols, shape, turn_cols = (COLUMNS[name] for name in TARGETS)
+    goal, shape, turn_cols = COLUMNS["goal"], COLUMNS["shape"], COLUMNS["turn"]
     goal_err = np.linalg.norm(predicted[:, goal] - true[:, goal], axis=1) * 1000
     shape_err = np.linalg.norm(predicted[:, shape] - true[:, shape], axis=1) * 1000
-    right, yaw, turn, turning = [], [], [], []
+    right: list[bool] = []
+    errors: dict[str, list[float]] = {name: [] for name in YAW_TARGETS}
+    turning: list[float] = []
     for row, frame in enumerate(frames):
         episode = int(recording.episode_of[frame])
         nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, goal], axis=1)))
         right.append(nearest == recording.target_slot[episode])
         symmetry = recording.symmetry[episode]
-        if symmetry > 0:
-            yaw.append(_folded_yaw_error(predicted[row, yaw_cols], true[row, yaw_cols], symmetry))
-            turn.append(_folded_yaw_error(predicted[row, turn_cols], true[row, turn_cols], symmetry))
+        if symmetry > 0:  # a shape any yaw fits has no yaw figure, in the hand or out of it
+            for name, folded_by in YAW_TARGETS.items():
+                cols = COLUMNS[name]
+                errors[name].append(_folded_yaw_error(predicted[row, cols], true[row, cols], folded_by or symmetry))
             if _folded_yaw_error(true[row, turn_cols], np.array([1.0, 0.0]), symmetry) > YAW_TOLERANCE:
-                turning.append(turn[-1])
-    yaws, turns, still = (np.array(v) if v else np.array([np.nan]) for v in (yaw, turn, turning))
-    return {
+                turning.append(errors["turn"][-1])
+    yaws = {name: np.array(v) if v else np.array([np.nan]) for name, v in errors.items()}
+    still = np.array(turning) if turning else np.array([np.nan])
+    figures = {
         "goal_mm": [float(np.median(goal_err)), float(np.percentile(goal_err, 90))],
         "right_slot": float(np.mean(right)),
-        "yaw_deg": float(np.median(yaws)),
-        "yaw_within_4deg": float(np.mean(yaws <= YAW_TOLERANCE)),
         "shape_mm": float(np.median(shape_err)),
-        "turn_deg": float(np.median(turns)),
-        "turn_within_4deg": float(np.mean(turns <= YAW_TOLERANCE)),
         "turning_deg": float(np.median(still)),
     }
+    for name, values in yaws.items():
+        figures[f"{name}_deg"] = float(np.median(values))
+        figures[f"{name}_within_4deg"] = float(np.mean(values <= YAW_TOLERANCE))
+    return figures
 
 
 def split(recording: Recording, eval_frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -278,17 +296,22 @@ def train_and_score(
     held: np.ndarray,
     seed: int = 1000,
     targets: tuple[str, ...] = tuple(TARGETS),
+    with_state: bool = False,
 ) -> tuple[dict, object]:
     """Train the encoder and head from scratch on the `train` frames, its loss over `targets` only; score the
-    `held` ones at each of `checkpoints` (update counts). Returns the figures and the trained encoder."""
+    `held` ones at each of `checkpoints` (update counts). `with_state`: the arm's state, standardised, joins the
+    encoder's features at the head. Returns the figures and the trained encoder."""
     import torch
     from torchvision.transforms import v2
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     encoder, width = build_encoder(encoder_kind, recording.image_shape)
+    arm = recording.state if with_state else None
+    if with_state and arm is None:
+        raise KitbenchError(f"{recording.root}: --with-state needs the recording's {STATE}")
     head = torch.nn.Sequential(
-        torch.nn.Linear(width * len(recording.cameras), HIDDEN),
+        torch.nn.Linear(width * len(recording.cameras) + (arm.shape[1] if arm is not None else 0), HIDDEN),
         torch.nn.ReLU(),
         torch.nn.Linear(HIDDEN, 2 * len(targets)),
     )
@@ -303,8 +326,9 @@ def train_and_score(
         for cam, pair in _image_stats(recording.root, recording.cameras).items()
     }
     shifter = v2.RandomAffine(degrees=0.0, translate=(shift, shift)) if shift > 0 else None
+    arm_mu, arm_sigma = (arm[train].mean(axis=0), arm[train].std(axis=0) + 1e-6) if arm is not None else (0.0, 1.0)
 
-    def images(frames: np.ndarray, augment: bool) -> list:
+    def images(frames: np.ndarray, augment: bool) -> tuple:
         items = [dataset[int(f)] for f in frames]
         per_camera = []
         for cam in recording.cameras:
@@ -313,12 +337,13 @@ def train_and_score(
                 x = torch.stack([shifter(img) for img in x])
             mean, std = stats[cam]
             per_camera.append((x - mean) / std)
-        return per_camera
+        return per_camera, None if arm is None else torch.from_numpy((arm[frames] - arm_mu) / arm_sigma)
 
-    def forward(per_camera: list):
+    def forward(inputs: tuple):
+        per_camera, state = inputs
         with torch.autocast("cpu", dtype=torch.bfloat16):
-            features = torch.cat([encoder(x).flatten(1) for x in per_camera], dim=1)
-            return head(features).float()
+            features = [encoder(x).flatten(1) for x in per_camera]
+            return head(torch.cat(features if state is None else [*features, state], dim=1)).float()
 
     def evaluate() -> dict:
         encoder.eval()
@@ -338,10 +363,10 @@ def train_and_score(
     update_seconds = 0.0
     for step in range(1, steps + 1):
         frames = rng.choice(train, size=batch)
-        per_camera = images(frames, augment=True)
+        inputs = images(frames, augment=True)
         target = (torch.from_numpy(recording.targets[frames]) - mu) / sigma
         begin = time.perf_counter()
-        loss = torch.nn.functional.l1_loss(forward(per_camera), target[:, trained])
+        loss = torch.nn.functional.l1_loss(forward(inputs), target[:, trained])
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -410,6 +435,9 @@ def main(argv: list[str] | None = None) -> int:
         "--targets", default=",".join(TARGETS), help=f"what the encoder is trained to read, of {', '.join(TARGETS)}"
     )
     parser.add_argument(
+        "--with-state", action="store_true", help="the arm's state (joints, gripper) beside the images, at the head"
+    )
+    parser.add_argument(
         "--save-policy",
         help="write an ACT policy whose backbone is the trained encoder, for lerobot-train --policy.path (one "
         "dataset, --encoders act, one shift)",
@@ -464,7 +492,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{len(train)} training frames, {len(held)} held-out; mean predictor: slot "
             f"{base['mean']['goal_mm'][0]:.0f} mm, right slot {base['mean']['right_slot']:.0%}, shape "
             f"{base['mean']['shape_mm']:.0f} mm, turn {base['mean']['turn_deg']:.0f} deg "
-            f"({base['mean']['turning_deg']:.0f} turning); an empty pocket at random: "
+            f"({base['mean']['turning_deg']:.0f} turning), shape yaw {base['mean']['shape_yaw_deg']:.0f} deg, "
+            f"yaw in the hand {base['mean']['grip_deg']:.0f} deg; an empty pocket at random: "
             f"right slot {base['chance_right_slot']:.0%}",
             flush=True,
         )
@@ -482,6 +511,7 @@ def main(argv: list[str] | None = None) -> int:
                     train,
                     held,
                     targets=targets,
+                    with_state=args.with_state,
                 )
                 if args.save_policy:
                     write_starting_policy(Path(args.policy_config), recording, encoder, Path(args.save_policy))
@@ -493,10 +523,12 @@ def main(argv: list[str] | None = None) -> int:
                     "encoder": kind,
                     "shift": shift,
                     "targets": list(targets),
+                    "with_state": args.with_state,
                     **result,
                     "baseline": base,
                 }
                 rows.append(row)
+                label = f"{kind}+state" if args.with_state else kind
                 for step, m in result["at"].items():
                     parts = {
                         "goal": f"slot {m['goal_mm'][0]:5.1f} / {m['goal_mm'][1]:5.1f} mm, right slot "
@@ -505,13 +537,16 @@ def main(argv: list[str] | None = None) -> int:
                         "shape": f"shape {m['shape_mm']:5.1f} mm",
                         "turn": f"turn {m['turn_deg']:5.1f} deg ({m['turn_within_4deg']:4.0%} within 4; "
                         f"{m['turning_deg']:5.1f} turning)",
+                        "shape_yaw": f"shape yaw {m['shape_yaw_deg']:5.1f} deg ({m['shape_yaw_within_4deg']:4.0%} "
+                        "within 4)",
+                        "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4)",
                     }
                     figures = ", ".join(parts[t] for t in TARGETS if t in targets)
                     print(
-                        f"  {kind:<12} shift {shift:<5g} {step:>6} updates: {figures}, train L1 {m['train_l1']:.3f}",
+                        f"  {label:<12} shift {shift:<5g} {step:>6} updates: {figures}, train L1 {m['train_l1']:.3f}",
                         flush=True,
                     )
-                print(f"  {kind:<12} shift {shift:<5g} {result['update_s']:.3f} s an update", flush=True)
+                print(f"  {label:<12} shift {shift:<5g} {result['update_s']:.3f} s an update", flush=True)
     if args.out:
         Path(args.out).write_text(
             json.dumps({"steps": args.steps, "batch": args.batch, "lr": args.lr, "rows": rows}, indent=1) + "\n"

@@ -21,7 +21,8 @@ def _recording(symmetry: float) -> Recording:
     slots = np.array([[0.0, 0.05 * i] for i in range(5)])
     goal, yaw = slots[2], 0.0
     k = 2 * math.pi / symmetry if symmetry > 0 else 0.0
-    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1, 1.0, 0.0]  # no turn left
+    # no turn left; the shape at yaw 0, in the hand at yaw 0
+    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0]
     return Recording(
         root=Path("."),
         cameras=("observation.images.base_camera",),
@@ -52,8 +53,8 @@ def test_the_slot_figures_measure_what_they_name():
     # 2 cm off towards the next slot is still nearest the right one; 3 cm off is nearer the next
     near = np.array(
         [
-            [0.0, 0.12, *_folded(90.0, square), 0.1, -0.1, *_folded(3.0, square)],
-            [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08, *_folded(-10.0, square)],
+            [0.0, 0.12, *_folded(90.0, square), 0.1, -0.1, *_folded(3.0, square), *_folded(0, square), 1, 0],
+            [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08, *_folded(-10.0, square), *_folded(0, square), 1, 0],
         ]
     )
     figures = score(recording, frames, near)
@@ -78,6 +79,21 @@ def test_the_turning_figure_counts_only_frames_still_to_turn():
     figures = score(recording, np.array([0, 1]), predicted)
     assert figures["turning_deg"] == pytest.approx(10.0, abs=1e-3)
     assert figures["turn_deg"] == pytest.approx(5.5, abs=1e-3)
+
+
+def test_the_shape_yaw_is_folded_by_its_symmetry_and_the_yaw_in_the_hand_by_a_half_turn():
+    square = math.pi / 2
+    recording = _recording(square)
+    predicted = recording.targets.astype(np.float64)
+    # the shape 90 degrees off is the same fit for a square; in the hand, 90 degrees off is as far as it gets
+    predicted[0, 8:10] = _folded(90.0, square)
+    predicted[0, 10:12] = _folded(90.0, math.pi)
+    # 180 degrees off in the hand closes the fingers the same way; 5 degrees off the shape is 5 degrees
+    predicted[1, 8:10] = _folded(5.0, square)
+    predicted[1, 10:12] = _folded(180.0, math.pi)
+    figures = score(recording, np.array([0, 1]), predicted)
+    assert figures["shape_yaw_deg"] == pytest.approx(2.5, abs=1e-3) and figures["shape_yaw_within_4deg"] == 0.5
+    assert figures["grip_deg"] == pytest.approx(45.0, abs=1e-3) and figures["grip_within_4deg"] == 0.5
 
 
 def test_a_shape_any_yaw_fits_has_no_yaw_figure():
@@ -122,12 +138,19 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(kits_rgb, tm
     assert "turning)" in printed and "right slot" not in printed.split("mean predictor")[1].split("\n", 1)[1]
     assert json.loads(report.read_text())["rows"][0]["targets"] == ["turn"]
 
+    # with the arm's state beside the images: the head reads both, and the report says so
+    argv = [str(kits_rgb), "--targets", "turn,grip", "--with-state", "--steps", "1", "--eval-frames", "4"]
+    assert main([*argv, "--out", str(report)]) == 0
+    assert "act+state" in capsys.readouterr().out
+    row = json.loads(report.read_text())["rows"][0]
+    assert row["with_state"] is True and math.isfinite(row["at"]["1"]["grip_deg"])
+
 
 @pytest.mark.parametrize(
     ("argv", "needle"),
     [
         (["--encoders", "act,vit"], "unknown encoder 'vit'; valid choices: act, diffusion"),
-        (["--targets", "goal,roll"], "unknown target 'roll'; valid choices: goal, yaw, shape, turn"),
+        (["--targets", "goal,roll"], "unknown target 'roll'; valid choices: goal, yaw, shape, turn, shape_yaw, grip"),
         (["--shifts", "0.9"], "--shifts '0.9': each must be in 0..0.5"),
         (["--shifts", "x"], "--shifts 'x' is not a comma-separated list"),
         (["--steps", "10", "--checkpoints", "20"], "--checkpoints '20': each must be in 1..--steps (10)"),
