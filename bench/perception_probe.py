@@ -74,7 +74,7 @@ TARGETS = {
     "shape_yaw": ("obj_yaw_sym.0", "obj_yaw_sym.1"),
     "grip": ("tcp_to_obj_yaw.0", "tcp_to_obj_yaw.1"),
 }
-# the yaw targets (all but `turning`'s, scored as the others) and the symmetry each is folded by: None, the shape's
+# the yaw targets and the symmetry each is folded by (None: the shape's own)
 YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": math.pi}
 STATE = "observation.state"
 COLUMNS = {name: slice(2 * i, 2 * i + 2) for i, name in enumerate(TARGETS)}  # each target's columns of `targets`
