@@ -328,7 +328,8 @@ def train_and_score(
     shifter = v2.RandomAffine(degrees=0.0, translate=(shift, shift)) if shift > 0 else None
     arm_mu, arm_sigma = (arm[train].mean(axis=0), arm[train].std(axis=0) + 1e-6) if arm is not None else (0.0, 1.0)
 
-    def images(frames: np.ndarray, augment: bool) -> tuple:
+    def inputs_of(frames: np.ndarray, augment: bool) -> tuple:
+        """The frames' normalised images per camera, and their standardised arm state (None without it)."""
         items = [dataset[int(f)] for f in frames]
         per_camera = []
         for cam in recording.cameras:
@@ -353,7 +354,7 @@ def train_and_score(
             for i in range(0, len(held), 64):
                 frames = held[i : i + 64]
                 predicted = mu.repeat(len(frames), 1)
-                predicted[:, trained] = forward(images(frames, augment=False)) * sigma[trained] + mu[trained]
+                predicted[:, trained] = forward(inputs_of(frames, augment=False)) * sigma[trained] + mu[trained]
                 out.append(predicted)
         encoder.train()
         head.train()
@@ -363,7 +364,7 @@ def train_and_score(
     update_seconds = 0.0
     for step in range(1, steps + 1):
         frames = rng.choice(train, size=batch)
-        inputs = images(frames, augment=True)
+        inputs = inputs_of(frames, augment=True)
         target = (torch.from_numpy(recording.targets[frames]) - mu) / sigma
         begin = time.perf_counter()
         loss = torch.nn.functional.l1_loss(forward(inputs), target[:, trained])

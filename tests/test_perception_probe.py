@@ -112,7 +112,9 @@ def kits_rgb(tmp_path_factory):
     return out
 
 
-def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(kits_rgb, tmp_path, capsys, needs_vulkan):
+def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(
+    kits_rgb, tmp_path, capsys, monkeypatch, needs_vulkan
+):
     report = tmp_path / "probe.json"
     argv = [str(kits_rgb), "--encoders", "act,diffusion", "--shifts", "0.05,0", "--steps", "2", "--eval-frames", "8"]
     assert main([*argv, "--out", str(report)]) == 0
@@ -144,6 +146,16 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(kits_rgb, tm
     assert "act+state" in capsys.readouterr().out
     row = json.loads(report.read_text())["rows"][0]
     assert row["with_state"] is True and math.isfinite(row["at"]["1"]["grip_deg"])
+
+    # the state reaches the head: an arm state of NaN makes the loss NaN with --with-state, and only with it
+    import bench.perception_probe as probe
+
+    recording = probe.read_recording(kits_rgb)
+    nan_state = dataclasses.replace(recording, state=np.full_like(recording.state, np.nan))
+    monkeypatch.setattr(probe, "read_recording", lambda root: nan_state)
+    for flags, finite in (([], True), (["--with-state"], False)):
+        assert main([str(kits_rgb), "--targets", "turn", *flags, "--steps", "1", "--out", str(report)]) == 0
+        assert math.isfinite(json.loads(report.read_text())["rows"][0]["at"]["1"]["train_l1"]) is finite
 
 
 @pytest.mark.parametrize(
