@@ -2,7 +2,7 @@
 
     python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
-        [--targets goal,yaw,shape,turn,shape_yaw,grip] [--with-state]
+        [--targets goal,yaw,shape,turn,shape_yaw,grip] [--with-state] [--hold-out episodes|kits] [--train-episodes N]
         [--save-policy DIR --policy-config policies/act_assembling_kits_rgb_cpu.json]
 
 An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
@@ -12,11 +12,17 @@ camera through the one shared encoder, as both policies share it) what the exper
 slot's position (`goal_xy`), its yaw folded by the shape's symmetry (`goal_yaw_sym`), the loose shape's
 position, the turn the shape still needs to fit its slot (`obj_to_goal_yaw`, folded likewise: what the hand's
 turn in the transport depends on), and the two yaws that turn is made of: the loose shape's own (`obj_yaw_sym`) and
-the shape's yaw in the hand (`tcp_to_obj_yaw`, folded by a half turn, as the fingers close). Nothing but the images
+the shape's yaw in the hand (its yaw less the hand's, `tcp_yaw`, folded by its symmetry: what a picture can tell
+and the insertion needs; the state's `tcp_to_obj_yaw` is folded by a half turn, which no picture of a square
+resolves). Nothing but the images
 goes in, unless `--with-state` adds the arm's own state (joints and gripper, as the policy reads it) beside the
 encoder's features: the hand's yaw is in the joints, so the turn needs the images to give only the shape's yaw in
 the hand and the slot's. `--targets` trains on a subset. It then scores the held-out episodes (the last 10% of the
-recording):
+recording), and as many of its training frames (`seen`: what it fits, against what it reads of new episodes).
+`--hold-out kits` also keeps out of training every episode whose kit a held-out episode has (a kit recurs in about
+three episodes of a recording, so otherwise the slot can be recognised from the kit's layout rather than measured);
+`--train-episodes N` trains on the first N of the training episodes only, the held-out ones unchanged (how a
+figure grows with the demonstrations):
 
 - slot: the predicted slot position's error (mm, median / p90), and how often the slot nearest to the prediction is
   the right one of the kit's five (`right slot`). A kit has empty pockets besides the target's; `chance` is what
@@ -50,7 +56,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -72,13 +78,15 @@ TARGETS = {
     "shape": ("obj_pose.x", "obj_pose.y"),
     "turn": ("obj_to_goal_yaw.0", "obj_to_goal_yaw.1"),
     "shape_yaw": ("obj_yaw_sym.0", "obj_yaw_sym.1"),
-    "grip": ("tcp_to_obj_yaw.0", "tcp_to_obj_yaw.1"),
+    "grip": ("obj_yaw_sym.0", "obj_yaw_sym.1"),  # less the hand's yaw (HAND_YAW): `in_hand_yaw`
 }
+HAND_YAW = ("tcp_yaw.0", "tcp_yaw.1")
 # the yaw targets and the symmetry each is folded by (None: the shape's own)
-YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": math.pi}
+YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": None}
 STATE = "observation.state"
 COLUMNS = {name: slice(2 * i, 2 * i + 2) for i, name in enumerate(TARGETS)}  # each target's columns of `targets`
 HELD_OUT = 0.1  # the share of the recording's episodes, its last ones, scored and never trained on
+HOLD_OUT = ("episodes", "kits")  # what the held-out episodes keep from training: themselves, or their kits too
 PROJECTED = 32  # channels of ACT's feature map kept a cell (ACT projects to its model width; the head stays small)
 HIDDEN = 256
 YAW_TOLERANCE = 4.0  # degrees: the task's rot_correct
@@ -102,6 +110,17 @@ class Recording:
     symmetry: dict[int, float]  # episode index -> its shape's rotational symmetry (rad; 0: any yaw fits)
     repo_id: str = f"kitbench/{TASK}"
     state: np.ndarray | None = None  # frames x the arm's state (joints, gripper): what --with-state adds
+    kit: dict[int, int] = field(default_factory=dict)  # episode index -> its kit (the episode file's kit_episode)
+
+
+def in_hand_yaw(shape_yaw_sym: np.ndarray, hand_yaw: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """[cos, sin] of `order` x (the shape's yaw less the hand's), per frame: the shape's yaw in the hand folded by
+    its symmetry, from its world yaw already so folded ([cos, sin] of order x yaw) and the hand's ([cos, sin]).
+    [1, 0] where the order is 0 (a disc or ring, which any yaw fits)."""
+    angle = np.arctan2(shape_yaw_sym[:, 1], shape_yaw_sym[:, 0]) - order * np.arctan2(hand_yaw[:, 1], hand_yaw[:, 0])
+    folded = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
+    folded[order == 0] = [1.0, 0.0]
+    return folded
 
 
 def read_recording(root: Path) -> Recording:
@@ -136,21 +155,26 @@ def read_recording(root: Path) -> Recording:
     arm = column_array(table.column(STATE))[order].astype(np.float32)
     episode_of = column_array(table.column("episode_index"))[order].astype(np.int64)
     kits = _load(None, ROBOT_VARIANTS.get(recording.robot or "", KitVariant()).scale)
-    slots, target_slot, empty, symmetry = {}, {}, {}, {}
+    slots, target_slot, empty, symmetry, kit_of = {}, {}, {}, {}, {}
     for line in read_episode_file(root):
         kit = kits[int(line.config["kit_episode"])]
         i = int(line.episode_index)
+        kit_of[i] = int(line.config["kit_episode"])
         slots[i] = np.array([s.pos for s in kit.slots], dtype=np.float64)
         target_slot[i] = int(kit.obj_to_place)
         empty[i] = len(kit.slots) - len(kit.obj_in_place)
         symmetry[i] = float(shape_geometry(kit.target_slot.shape_id, kits.board.scale).symmetry)
+    targets = state[:, columns]
+    order = np.array([2 * math.pi / symmetry[e] if symmetry[e] > 0 else 0.0 for e in episode_of])
+    hand = state[:, [names.index(n) for n in HAND_YAW]]
+    targets[:, COLUMNS["grip"]] = in_hand_yaw(targets[:, COLUMNS["grip"]], hand, order)
     return Recording(
         root=root,
         cameras=cameras,
         image_shape=(c, h, w),
         camera_size=f"{w}x{h}",
         camera_view=recording.camera_view,
-        targets=state[:, columns],
+        targets=targets,
         episode_of=episode_of,
         slots=slots,
         target_slot=target_slot,
@@ -158,6 +182,7 @@ def read_recording(root: Path) -> Recording:
         symmetry=symmetry,
         repo_id=recording.repo_id or f"kitbench/{TASK}",
         state=arm,
+        kit=kit_of,
     )
 
 
@@ -263,16 +288,37 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
     return figures
 
 
-def split(recording: Recording, eval_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """Training frames (the first 90% of episodes) and at most `eval_frames` evenly spaced held-out ones."""
+def _spaced(frames: np.ndarray, count: int) -> np.ndarray:
+    """At most `count` of `frames`, evenly spaced."""
+    return frames[:: max(1, len(frames) // count)][:count]
+
+
+def split(
+    recording: Recording, eval_frames: int, hold_out: str = "episodes", train_episodes: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Training frames (of the first 90% of episodes; with `hold_out` "kits" none whose kit a held-out episode has;
+    the first `train_episodes` of those) and at most `eval_frames` evenly spaced held-out ones (the last 10%)."""
     episodes = np.unique(recording.episode_of)
     cut = episodes[int(len(episodes) * (1 - HELD_OUT))]
-    train = np.flatnonzero(recording.episode_of < cut)
+    held_episodes, pool = episodes[episodes >= cut], episodes[episodes < cut]
+    if hold_out == "kits":
+        held_kits = {recording.kit[int(e)] for e in held_episodes}
+        pool = np.array([e for e in pool if recording.kit[int(e)] not in held_kits], dtype=episodes.dtype)
+    if len(pool) == 0 or len(held_episodes) == 0:
+        raise KitbenchError(
+            f"{recording.root} has {len(episodes)} episodes, {len(pool)} of them to train on with --hold-out "
+            f"{hold_out}; the probe needs at least one of each"
+        )
+    if train_episodes is not None:
+        if not 1 <= train_episodes <= len(pool):
+            raise KitbenchError(
+                f"--train-episodes {train_episodes}: {recording.root.name} has {len(pool)} training episodes with "
+                f"--hold-out {hold_out}; give 1..{len(pool)}"
+            )
+        pool = pool[:train_episodes]
+    train = np.flatnonzero(np.isin(recording.episode_of, pool))
     held = np.flatnonzero(recording.episode_of >= cut)
-    if len(train) == 0 or len(held) == 0:
-        raise KitbenchError(f"{recording.root} has {len(episodes)} episodes; the probe needs at least 2")
-    step = max(1, len(held) // eval_frames)
-    return train, held[::step][:eval_frames]
+    return train, _spaced(held, eval_frames)
 
 
 def baselines(recording: Recording, train: np.ndarray, held: np.ndarray) -> dict:
@@ -297,10 +343,12 @@ def train_and_score(
     seed: int = 1000,
     targets: tuple[str, ...] = tuple(TARGETS),
     with_state: bool = False,
+    seen: np.ndarray | None = None,
 ) -> tuple[dict, object]:
     """Train the encoder and head from scratch on the `train` frames, its loss over `targets` only; score the
-    `held` ones at each of `checkpoints` (update counts). `with_state`: the arm's state, standardised, joins the
-    encoder's features at the head. Returns the figures and the trained encoder."""
+    `held` ones at each of `checkpoints` (update counts), and the `seen` ones (training frames) under "seen".
+    `with_state`: the arm's state, standardised, joins the encoder's features at the head. Returns the figures and
+    the trained encoder."""
     import torch
     from torchvision.transforms import v2
 
@@ -346,19 +394,19 @@ def train_and_score(
             features = [encoder(x).flatten(1) for x in per_camera]
             return head(torch.cat(features if state is None else [*features, state], dim=1)).float()
 
-    def evaluate() -> dict:
+    def evaluate(scored: np.ndarray) -> dict:
         encoder.eval()
         head.eval()
         with torch.no_grad():
             out = []
-            for i in range(0, len(held), 64):
-                frames = held[i : i + 64]
+            for i in range(0, len(scored), 64):
+                frames = scored[i : i + 64]
                 predicted = mu.repeat(len(frames), 1)
                 predicted[:, trained] = forward(inputs_of(frames, augment=False)) * sigma[trained] + mu[trained]
                 out.append(predicted)
         encoder.train()
         head.train()
-        return score(recording, held, torch.cat(out).numpy())
+        return score(recording, scored, torch.cat(out).numpy())
 
     marks: dict[int, dict] = {}
     update_seconds = 0.0
@@ -373,7 +421,9 @@ def train_and_score(
         optimizer.step()
         update_seconds += time.perf_counter() - begin
         if step in checkpoints:
-            marks[step] = {**evaluate(), "train_l1": float(loss.detach())}
+            marks[step] = {**evaluate(held), "train_l1": float(loss.detach())}
+            if seen is not None:
+                marks[step]["seen"] = evaluate(seen)
     return {"update_s": update_seconds / steps, "at": marks}, encoder
 
 
@@ -409,6 +459,20 @@ def open_dataset(recording: Recording):
     return LeRobotDataset(recording.repo_id, root=recording.root)
 
 
+def describe(m: dict, targets: tuple[str, ...]) -> str:
+    """One checkpoint's figures of the trained targets, as the report prints them."""
+    parts = {
+        "goal": f"slot {m['goal_mm'][0]:5.1f} / {m['goal_mm'][1]:5.1f} mm, right slot {m['right_slot']:4.0%}",
+        "yaw": f"yaw {m['yaw_deg']:5.1f} deg ({m['yaw_within_4deg']:4.0%} within 4)",
+        "shape": f"shape {m['shape_mm']:5.1f} mm",
+        "turn": f"turn {m['turn_deg']:5.1f} deg ({m['turn_within_4deg']:4.0%} within 4; "
+        f"{m['turning_deg']:5.1f} turning)",
+        "shape_yaw": f"shape yaw {m['shape_yaw_deg']:5.1f} deg ({m['shape_yaw_within_4deg']:4.0%} within 4)",
+        "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4)",
+    }
+    return ", ".join(parts[t] for t in TARGETS if t in targets)
+
+
 def parse_list(text: str, kind, name: str, valid: str) -> list:
     try:
         values = [kind(v) for v in text.split(",") if v.strip()]
@@ -439,6 +503,15 @@ def main(argv: list[str] | None = None) -> int:
         "--with-state", action="store_true", help="the arm's state (joints, gripper) beside the images, at the head"
     )
     parser.add_argument(
+        "--hold-out",
+        default="episodes",
+        help="what the held-out episodes keep out of training: episodes (themselves) or kits (every episode of "
+        "their kits too)",
+    )
+    parser.add_argument(
+        "--train-episodes", type=int, help="train on the first N training episodes only (default: all of them)"
+    )
+    parser.add_argument(
         "--save-policy",
         help="write an ACT policy whose backbone is the trained encoder, for lerobot-train --policy.path (one "
         "dataset, --encoders act, one shift)",
@@ -457,6 +530,8 @@ def main(argv: list[str] | None = None) -> int:
         shifts = parse_list(args.shifts, float, "--shifts", "numbers in 0..0.5")
         if any(not 0 <= s <= 0.5 for s in shifts):
             raise KitbenchError(f"--shifts {args.shifts!r}: each must be in 0..0.5")
+        if args.hold_out not in HOLD_OUT:
+            raise KitbenchError(f"--hold-out: unknown choice {args.hold_out!r}; valid choices: {', '.join(HOLD_OUT)}")
         if args.steps < 1 or args.batch < 1 or args.eval_frames < 1:
             raise KitbenchError("--steps, --batch and --eval-frames must be at least 1")
         default = sorted({max(1, args.steps // 4), max(1, args.steps // 2), args.steps})
@@ -478,19 +553,22 @@ def main(argv: list[str] | None = None) -> int:
             if policy_type != "act":
                 raise KitbenchError(f"--policy-config {config} trains {policy_type!r}; the probe's encoder is ACT's")
         recordings = [read_recording(root) for root in args.datasets]
+        splits = [split(r, args.eval_frames, args.hold_out, args.train_episodes) for r in recordings]
     except KitbenchError as exc:
         print(f"perception_probe: error: {exc}", file=sys.stderr)
         return 2
     rows = []
-    for recording in recordings:
+    for recording, (train, held) in zip(recordings, splits, strict=True):
         dataset = open_dataset(recording)
-        train, held = split(recording, args.eval_frames)
+        seen = _spaced(train, len(held))
         base = baselines(recording, train, held)
         name = recording.root.name
         view = recording.camera_view or "default"
+        trained_on = len(np.unique(recording.episode_of[train]))
         print(
             f"{name}: {recording.camera_size} {view} view, {', '.join(c[len(IMAGES) :] for c in recording.cameras)}; "
-            f"{len(train)} training frames, {len(held)} held-out; mean predictor: slot "
+            f"{len(train)} training frames of {trained_on} episodes, {len(held)} held-out (held out: "
+            f"{args.hold_out}); mean predictor: slot "
             f"{base['mean']['goal_mm'][0]:.0f} mm, right slot {base['mean']['right_slot']:.0%}, shape "
             f"{base['mean']['shape_mm']:.0f} mm, turn {base['mean']['turn_deg']:.0f} deg "
             f"({base['mean']['turning_deg']:.0f} turning), shape yaw {base['mean']['shape_yaw_deg']:.0f} deg, "
@@ -513,6 +591,7 @@ def main(argv: list[str] | None = None) -> int:
                     held,
                     targets=targets,
                     with_state=args.with_state,
+                    seen=seen,
                 )
                 if args.save_policy:
                     write_starting_policy(Path(args.policy_config), recording, encoder, Path(args.save_policy))
@@ -525,26 +604,17 @@ def main(argv: list[str] | None = None) -> int:
                     "shift": shift,
                     "targets": list(targets),
                     "with_state": args.with_state,
+                    "hold_out": args.hold_out,
+                    "train_episodes": trained_on,
                     **result,
                     "baseline": base,
                 }
                 rows.append(row)
                 label = f"{kind}+state" if args.with_state else kind
                 for step, m in result["at"].items():
-                    parts = {
-                        "goal": f"slot {m['goal_mm'][0]:5.1f} / {m['goal_mm'][1]:5.1f} mm, right slot "
-                        f"{m['right_slot']:4.0%}",
-                        "yaw": f"yaw {m['yaw_deg']:5.1f} deg ({m['yaw_within_4deg']:4.0%} within 4)",
-                        "shape": f"shape {m['shape_mm']:5.1f} mm",
-                        "turn": f"turn {m['turn_deg']:5.1f} deg ({m['turn_within_4deg']:4.0%} within 4; "
-                        f"{m['turning_deg']:5.1f} turning)",
-                        "shape_yaw": f"shape yaw {m['shape_yaw_deg']:5.1f} deg ({m['shape_yaw_within_4deg']:4.0%} "
-                        "within 4)",
-                        "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4)",
-                    }
-                    figures = ", ".join(parts[t] for t in TARGETS if t in targets)
                     print(
-                        f"  {label:<12} shift {shift:<5g} {step:>6} updates: {figures}, train L1 {m['train_l1']:.3f}",
+                        f"  {label:<12} shift {shift:<5g} {step:>6} updates: {describe(m, targets)}, train L1 "
+                        f"{m['train_l1']:.3f}\n  {'':<12} {'seen':<11} {'':>14}  {describe(m['seen'], targets)}",
                         flush=True,
                     )
                 print(f"  {label:<12} shift {shift:<5g} {result['update_s']:.3f} s an update", flush=True)

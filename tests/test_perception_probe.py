@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.perception_probe import Recording, main, score
+from bench.perception_probe import Recording, main, score, split
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,25 +81,98 @@ def test_the_turning_figure_counts_only_frames_still_to_turn():
     assert figures["turn_deg"] == pytest.approx(5.5, abs=1e-3)
 
 
-def test_the_shape_yaw_is_folded_by_its_symmetry_and_the_yaw_in_the_hand_by_a_half_turn():
+def test_the_shape_yaw_and_its_yaw_in_the_hand_are_folded_by_its_symmetry():
     square = math.pi / 2
     recording = _recording(square)
     predicted = recording.targets.astype(np.float64)
-    # the shape 90 degrees off is the same fit for a square; in the hand, 90 degrees off is as far as it gets
+    # the shape 90 degrees off is the same fit for a square, in the hand or out of it (a picture shows the same)
     predicted[0, 8:10] = _folded(90.0, square)
-    predicted[0, 10:12] = _folded(90.0, math.pi)
-    # 180 degrees off in the hand closes the fingers the same way; 5 degrees off the shape is 5 degrees
+    predicted[0, 10:12] = _folded(90.0, square)
+    # 5 degrees off the shape is 5 degrees; 45 off in the hand is as far as a square gets
     predicted[1, 8:10] = _folded(5.0, square)
-    predicted[1, 10:12] = _folded(180.0, math.pi)
+    predicted[1, 10:12] = _folded(45.0, square)
     figures = score(recording, np.array([0, 1]), predicted)
     assert figures["shape_yaw_deg"] == pytest.approx(2.5, abs=1e-3) and figures["shape_yaw_within_4deg"] == 0.5
-    assert figures["grip_deg"] == pytest.approx(45.0, abs=1e-3) and figures["grip_within_4deg"] == 0.5
+    assert figures["grip_deg"] == pytest.approx(22.5, abs=1e-3) and figures["grip_within_4deg"] == 0.5
+
+
+@pytest.mark.parametrize(
+    ("symmetry", "shape_deg", "hand_deg", "in_hand_deg"),
+    [
+        (math.pi / 2, 100.0, 10.0, 0.0),  # a square 90 degrees round in the hand sits as it did
+        (math.pi / 2, 100.0, 30.0, -20.0),
+        (2 * math.pi / 3, 50.0, -80.0, 10.0),  # a triangle: 130 less a third of a turn
+        (2 * math.pi, 170.0, -20.0, -170.0),  # no symmetry: the whole turn counts
+        (math.pi, 10.0, 180.0, 10.0),  # a half turn of the hand is none for a rectangle
+    ],
+)
+def test_the_yaw_in_the_hand_is_the_shapes_less_the_hands_folded_by_its_symmetry(
+    symmetry, shape_deg, hand_deg, in_hand_deg
+):
+    from bench.perception_probe import in_hand_yaw
+
+    hand = math.radians(hand_deg)
+    got = in_hand_yaw(
+        np.array([_folded(shape_deg, symmetry)]),
+        np.array([[math.cos(hand), math.sin(hand)]]),
+        np.array([2 * math.pi / symmetry]),
+    )
+    assert got[0] == pytest.approx(_folded(in_hand_deg, symmetry), abs=1e-6)
+    # a disc or ring: any yaw fits, the target is constant
+    assert in_hand_yaw(got, np.array([[0.0, 1.0]]), np.array([0.0]))[0] == pytest.approx([1.0, 0.0])
 
 
 def test_a_shape_any_yaw_fits_has_no_yaw_figure():
     recording = _recording(0.0)
     figures = score(recording, np.array([0, 1]), recording.targets.astype(np.float64))
     assert math.isnan(figures["yaw_deg"]) and figures["right_slot"] == 1.0
+
+
+def _episodes(kits: list[int]) -> Recording:
+    """A recording of one episode per entry of `kits` (that episode's kit), three frames each."""
+    recording = _recording(math.pi / 2)
+    count = len(kits)
+    return dataclasses.replace(
+        recording,
+        targets=np.repeat(recording.targets[:1], 3 * count, axis=0),
+        episode_of=np.repeat(np.arange(count), 3),
+        kit=dict(enumerate(kits)),
+    )
+
+
+def test_the_held_out_episodes_are_the_last_tenth_and_hold_out_kits_keeps_their_kits_from_training():
+    # 20 episodes on 7 kits: episodes 18 and 19 are held out, their kits 4 and 6 recur in episodes 4, 6, 11, 13
+    kits = [i % 7 for i in range(18)] + [4, 6]
+    recording = _episodes(kits)
+    train, held = split(recording, 100)
+    assert set(recording.episode_of[held]) == {18, 19} and set(recording.episode_of[train]) == set(range(18))
+    assert len(held) == 6  # every held-out frame when fewer than asked
+    train, held = split(recording, 100, hold_out="kits")
+    trained = set(recording.episode_of[train].tolist())
+    assert trained == set(range(18)) - {4, 6, 11, 13}
+    assert not {kits[e] for e in trained} & {4, 6}
+    # the first N training episodes only; the held-out frames do not move
+    train_n, held_n = split(recording, 100, hold_out="kits", train_episodes=3)
+    assert set(recording.episode_of[train_n].tolist()) == {0, 1, 2} and (held_n == held).all()
+    assert len(split(recording, 2)[1]) == 2  # at most eval_frames held-out frames
+
+
+@pytest.mark.parametrize("count", [0, 15])
+def test_more_training_episodes_than_there_are_is_one_line(count):
+    from kitbench.errors import KitbenchError
+
+    kits = [i % 7 for i in range(18)] + [4, 6]
+    with pytest.raises(
+        KitbenchError, match=r"--train-episodes .*: .* has 14 training episodes with --hold-out kits; give 1..14"
+    ):
+        split(_episodes(kits), 100, hold_out="kits", train_episodes=count)
+
+
+def test_a_recording_whose_every_kit_is_held_out_has_nothing_to_train_on():
+    from kitbench.errors import KitbenchError
+
+    with pytest.raises(KitbenchError, match="0 of them to train on with --hold-out kits"):
+        split(_episodes([1] * 10), 100, hold_out="kits")
 
 
 @pytest.fixture(scope="module")
@@ -130,6 +203,9 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(
         assert sorted(row["at"], key=int) == ["1", "2"] and row["update_s"] > 0
         for figures in row["at"].values():
             assert 0.0 <= figures["right_slot"] <= 1.0 and math.isfinite(figures["goal_mm"][0])
+            # the training frames are scored too: the fit beside what it reads of new episodes
+            assert 0.0 <= figures["seen"]["right_slot"] <= 1.0 and math.isfinite(figures["seen"]["goal_mm"][0])
+        assert row["hold_out"] == "episodes" and row["train_episodes"] == 2
         # the last of three episodes is held out: its kit's empty pockets give the chance figure
         assert 0.0 < row["baseline"]["chance_right_slot"] <= 1.0
     assert "right slot" in capsys.readouterr().out
@@ -166,6 +242,7 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(
         (["--shifts", "0.9"], "--shifts '0.9': each must be in 0..0.5"),
         (["--shifts", "x"], "--shifts 'x' is not a comma-separated list"),
         (["--steps", "10", "--checkpoints", "20"], "--checkpoints '20': each must be in 1..--steps (10)"),
+        (["--hold-out", "shapes"], "--hold-out: unknown choice 'shapes'; valid choices: episodes, kits"),
     ],
 )
 def test_bad_arguments_are_one_line(argv, needle, tmp_path, capsys):
