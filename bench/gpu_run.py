@@ -164,7 +164,7 @@ def train(config: str, data: Path, out: Path, args, reader: str, logs: Path, ste
         "HF_HUB_OFFLINE": "1",
         "WANDB_MODE": "disabled",
     }
-    name = f"{config}_{out.name}"
+    name = f"{config}_{out.name}" + (f"_{args.tag}" if args.tag else "")  # a variant keeps its own logs
     sampler = GpuSampler(logs / f"gpu_{name}.csv")
     with sampler:
         seconds = run(cmd, logs / f"train_{name}.log", env)
