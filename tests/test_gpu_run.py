@@ -3,6 +3,7 @@ samples, and its bad arguments."""
 
 from __future__ import annotations
 
+import argparse
 from datetime import datetime
 
 import pytest
@@ -82,3 +83,25 @@ def test_bad_arguments_are_one_line(argv, needle, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith("gpu_run: error:") and needle in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_tagged_variant_keeps_its_own_log_beside_the_shipped_configs(tmp_path, monkeypatch):
+    import bench.gpu_run as gpu_run
+
+    def fake_run(cmd, log, env=None):
+        batch = next((a.split("=")[1] for a in cmd if a.startswith("--batch_size=")), "64")
+        log.write_text(f"INFO 2026-11-28 06:49:02 ot_train.py:447 Effective batch size: {batch} x 1 = {batch}\n")
+        return 1.0
+
+    monkeypatch.setattr(gpu_run, "run", fake_run)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    shipped = argparse.Namespace(extra=[], tiny=False, tag="")
+    variant = argparse.Namespace(extra=["--batch_size=256"], tiny=False, tag="b256")
+    out = tmp_path / "train" / "after"
+    first = gpu_run.train("act_lift_peg_upright_rgb", tmp_path, out, shipped, "kitbench", logs, 10)
+    second = gpu_run.train("act_lift_peg_upright_rgb", tmp_path, out, variant, "kitbench", logs, 10)
+    assert (first["batch_size"], second["batch_size"]) == (64, 256)
+    # the variant's run did not overwrite the shipped config's log: both can be read after the run
+    assert "size: 64 x" in (logs / "train_act_lift_peg_upright_rgb_after.log").read_text()
+    assert "size: 256 x" in (logs / "train_act_lift_peg_upright_rgb_after_b256.log").read_text()
