@@ -157,17 +157,19 @@ def read_recording(root: Path) -> Recording:
     kits = _load(None, ROBOT_VARIANTS.get(recording.robot or "", KitVariant()).scale)
     slots, target_slot, empty, symmetry, kit_of = {}, {}, {}, {}, {}
     for line in read_episode_file(root):
-        kit = kits[int(line.config["kit_episode"])]
         i = int(line.episode_index)
         kit_of[i] = int(line.config["kit_episode"])
+        kit = kits[kit_of[i]]
         slots[i] = np.array([s.pos for s in kit.slots], dtype=np.float64)
         target_slot[i] = int(kit.obj_to_place)
         empty[i] = len(kit.slots) - len(kit.obj_in_place)
         symmetry[i] = float(shape_geometry(kit.target_slot.shape_id, kits.board.scale).symmetry)
     targets = state[:, columns]
-    order = np.array([2 * math.pi / symmetry[e] if symmetry[e] > 0 else 0.0 for e in episode_of])
+    # each frame's symmetry order (0 for a disc or ring), computed once an episode
+    episodes, frame_episode = np.unique(episode_of, return_inverse=True)
+    fold = np.array([2 * math.pi / symmetry[int(e)] if symmetry[int(e)] > 0 else 0.0 for e in episodes])
     hand = state[:, [names.index(n) for n in HAND_YAW]]
-    targets[:, COLUMNS["grip"]] = in_hand_yaw(targets[:, COLUMNS["grip"]], hand, order)
+    targets[:, COLUMNS["grip"]] = in_hand_yaw(targets[:, COLUMNS["grip"]], hand, fold[frame_episode])
     return Recording(
         root=root,
         cameras=cameras,
