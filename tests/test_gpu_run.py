@@ -4,7 +4,12 @@ samples, and its bad arguments."""
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 from datetime import datetime
+from pathlib import Path
 
 import pytest
 
@@ -105,3 +110,39 @@ def test_a_tagged_variant_keeps_its_own_log_beside_the_shipped_configs(tmp_path,
     # the variant's run did not overwrite the shipped config's log: both can be read after the run
     assert "size: 64 x" in (logs / "train_act_lift_peg_upright_rgb_after.log").read_text()
     assert "size: 256 x" in (logs / "train_act_lift_peg_upright_rgb_after_b256.log").read_text()
+
+
+LEARN_SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "gpu_learn.sh"
+
+
+def test_the_learn_script_runs_both_trainings_each_with_its_variant_as_one_argument(tmp_path):
+    calls = tmp_path / "calls.jsonl"
+    fake = tmp_path / "python"
+    fake.write_text(
+        f"#!{sys.executable}\nimport json, sys\nopen({str(calls)!r}, 'a').write(json.dumps(sys.argv[1:]) + '\\n')\n"
+    )
+    fake.chmod(0o755)
+    env = {**os.environ, "PY": str(fake), "PATH": "/usr/bin:/bin"}
+    env.pop("TINY", None)
+    done = subprocess.run(
+        ["bash", str(LEARN_SCRIPT), "run", str(tmp_path / "kb")], env=env, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    runs = {
+        argv[argv.index("--out") + 1].rsplit("/", 1)[1]: argv
+        for argv in map(json.loads, calls.read_text().splitlines())
+    }
+    assert set(runs) == {"ak", "diffusion"}
+    ak, diffusion = runs["ak"], runs["diffusion"]
+    assert ak[ak.index("--config") + 1] == "act_assembling_kits_rgb_cpu"
+    assert "--extra=--policy.device=cuda --batch_size=64 --num_workers=6" in ak and ak[-2:] == ["--tag", "gpu"]
+    assert diffusion[diffusion.index("--config") + 1] == "diffusion_lift_peg_upright_rgb"
+    # the recordings split the 14 workers between them
+    assert int(ak[ak.index("--workers") + 1]) + int(diffusion[diffusion.index("--workers") + 1]) == 14
+    assert "== all done" in (tmp_path / "kb" / "run.log").read_text()
+
+
+def test_the_learn_script_names_its_commands_on_a_bad_one(tmp_path):
+    done = subprocess.run(["bash", str(LEARN_SCRIPT), "train", str(tmp_path)], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert done.stderr.strip() == "gpu_learn.sh: unknown command 'train' (choose run or collect)"
