@@ -33,8 +33,9 @@ AK=${AK_CONFIG:-act_assembling_kits_rgb_cpu}; AK_DEMOS=${AK_DEMOS:-1000}; AK_STE
 AK_EXTRA=${AK_EXTRA:---policy.device=cuda --batch_size=64 --num_workers=6}
 DF=${DF_CONFIG:-diffusion_lift_peg_upright_rgb}; DF_DEMOS=${DF_DEMOS:-200}; DF_STEPS=${DF_STEPS:-4000}
 DF_EXTRA=${DF_EXTRA:---num_workers=6}
-W=14; TINY_ARG=""
-if [ -n "${TINY:-}" ]; then W=1; TINY_ARG=--tiny; AK_EXTRA=""; DF_EXTRA=""; fi
+# the recordings split the 14 free cores; each training then has its own loader workers
+AK_W=9; DF_W=5; TINY_ARG=""
+if [ -n "${TINY:-}" ]; then AK_W=1; DF_W=1; TINY_ARG=--tiny; AK_EXTRA=""; DF_EXTRA=""; fi
 learn() {  # learn NAME CONFIG DEMOS STEPS WORKERS EXTRA
   local variant=(); [ -n "$6" ] && variant=(--extra="$6" --tag gpu)
   $PY bench/gpu_run.py --plan learn --out "$dir/$1" --config "$2" --demos "$3" --steps "$4" --workers "$5" \
@@ -43,8 +44,7 @@ learn() {  # learn NAME CONFIG DEMOS STEPS WORKERS EXTRA
 }
 echo "== start $(date +%T)"
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
-# the recordings split the cores; each training then has its own loader workers
-learn ak "$AK" "$AK_DEMOS" "$AK_STEPS" $(( W > 1 ? W * 9 / 14 : 1 )) "$AK_EXTRA" & ak=$!
-learn diffusion "$DF" "$DF_DEMOS" "$DF_STEPS" $(( W > 1 ? W * 5 / 14 : 1 )) "$DF_EXTRA" & df=$!
+learn ak "$AK" "$AK_DEMOS" "$AK_STEPS" "$AK_W" "$AK_EXTRA" & ak=$!
+learn diffusion "$DF" "$DF_DEMOS" "$DF_STEPS" "$DF_W" "$DF_EXTRA" & df=$!
 wait $ak $df  # not a bare wait: that would wait for the log's tee too
 echo "== all done $(date +%T)"
