@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", required=True)
     parser.add_argument("--robot", help="the robot (default: the task's own)")
     parser.add_argument("--camera-size", help="WxH or one side (default: the cameras' own, 128x128)")
-    parser.add_argument("--camera-view", help="a framing of the task's cameras it declares (default: its own)")
+    parser.add_argument("--camera-view", help="a framing of the cameras the task declares (default: their own)")
     parser.add_argument("--control-mode", default="pd_joint_pos", help="the expert's control mode")
     parser.add_argument("--seeds", default="1000000:1000012", help="N (seeds 0..N-1), A:B or S1,S2,...")
     parser.add_argument("--expert-option", action="append", default=[], metavar="KEY=VALUE")

@@ -95,9 +95,10 @@ class PolicyEnvSettings(TaskSettings):
     # Every observation camera's image, WIDTHxHEIGHT pixels (one number: a square), each camera keeping its field of
     # view (default: the task's and robot's own, 128x128). A policy is scored at the size it was trained at.
     camera_size: str | None = setting(None, check=optional(_size), metavar="WxH")
-    # Another framing of the task's own cameras, by the name the task declares it under (AssemblingKits: board, its
-    # base camera in front of the board, framing the board and the shape's spawn area); default: the task's
-    # cameras as ManiSkill frames them. A policy is scored in the framing it was trained in.
+    # Another framing of the observation cameras, by the name the task declares it under (AssemblingKits: board, its
+    # base camera in front of the board; LiftPegUpright: peg, the base camera or the SO-101's front camera nearer
+    # the peg); default: the cameras as ManiSkill and the robot frame them. A policy is scored in the framing it was
+    # trained in.
     camera_view: str | None = setting(None, metavar="NAME")
 
     def __post_init__(self) -> None:
@@ -105,9 +106,13 @@ class PolicyEnvSettings(TaskSettings):
         self.camera_size = canonical_size(self.camera_size)
 
     def check_camera_view(self) -> None:
-        """The view is one the task declares, of cameras the robot leaves the task (the SO-101 brings its own)."""
+        """The view is one the task declares, and frames at least one camera the task has with this robot."""
+        self._view_framings()
+
+    def _view_framings(self) -> dict[str, dict]:
+        """The view's framings of the cameras the task has with this robot ({} without a view)."""
         if self.camera_view is None or self.task not in TASKS:
-            return
+            return {}
         env_class = TASKS[self.task].env_class
         views = env_class.camera_views
         if self.camera_view not in views:
@@ -115,13 +120,15 @@ class PolicyEnvSettings(TaskSettings):
                 f"camera_view {self.camera_view!r} is not one of {self.task}'s; valid choices: "
                 f"{', '.join(views) or '(none: the task declares no other view)'}"
             )
-        from kitbench.robots import ROBOTS
-
-        if not ROBOTS[self.robot_uid].task_cameras:
+        self.check_robot()
+        cameras = env_class.observation_cameras(self.robot_uid)
+        framings = {camera: dict(v) for camera, v in views[self.camera_view].items() if camera in cameras}
+        if not framings:
             raise KitbenchError(
-                f"camera_view {self.camera_view!r} frames {self.task}'s own cameras, which robot {self.robot_uid} "
-                "replaces with its own; drop --camera-view"
+                f"camera_view {self.camera_view!r} frames none of {self.task}'s cameras with robot {self.robot_uid} "
+                f"({', '.join(cameras)}); drop --camera-view"
             )
+        return framings
 
     @property
     def sensor_configs(self) -> dict | None:
@@ -130,14 +137,7 @@ class PolicyEnvSettings(TaskSettings):
         if self.camera_size is not None:
             width, height = parse_size(self.camera_size)
             configs.update(width=width, height=height)
-        if self.camera_view is not None:
-            self.check_camera_view()
-            configs.update(
-                {
-                    camera: dict(view)
-                    for camera, view in TASKS[self.task_id].env_class.camera_views[self.camera_view].items()
-                }
-            )
+        configs.update(self._view_framings())
         return configs or None
 
 

@@ -61,12 +61,29 @@ def test_a_view_is_the_tasks_sensor_configs_beside_the_size():
     assert PolicyEnvSettings(task=AK).sensor_configs is None
 
 
+def test_a_view_frames_the_cameras_the_robot_has():
+    """LiftPegUpright's `peg` moves the task's base camera for the Panda and the SO-101's own front camera for the
+    SO-101 (which has no base camera); each env gets only the framings of the cameras it renders."""
+    from kitbench.tasks.lift_peg_upright import LiftPegUprightEnv
+
+    peg = LiftPegUprightEnv.camera_views["peg"]
+    assert PolicyEnvSettings(task=LPU, camera_view="peg").sensor_configs == {"base_camera": peg["base_camera"]}
+    assert PolicyEnvSettings(task=LPU, robot="so101", camera_view="peg").sensor_configs == {"front": peg["front"]}
+    assert LiftPegUprightEnv.observation_cameras("so101") == ("front", "wrist")
+    assert LiftPegUprightEnv.observation_cameras("panda") == ("base_camera",)
+    with pytest.raises(KitbenchError, match="robot 'ur5' is not supported by LiftPegUpright-v1; valid choices"):
+        _ = PolicyEnvSettings(task=LPU, robot="ur5", camera_view="peg").sensor_configs
+
+
 @pytest.mark.parametrize(
     ("settings", "message"),
     [
         ({"task": AK, "camera_view": "top"}, "'top' is not one of AssemblingKits-v1's; valid choices: board"),
         ({"task": LPU, "camera_view": "board"}, "'board' is not one of LiftPegUpright-v1's; valid choices: peg"),
-        ({"task": AK, "robot": "so101", "camera_view": "board"}, "which robot so101 replaces with its own"),
+        (
+            {"task": AK, "robot": "so101", "camera_view": "board"},
+            "frames none of AssemblingKits-v1's cameras with robot so101 (front, wrist)",
+        ),
     ],
 )
 def test_a_view_the_task_or_robot_has_not_is_one_line(settings, message, tmp_path):
@@ -97,35 +114,58 @@ def test_the_board_view_puts_more_of_the_board_in_the_picture(needs_vulkan):
     assert (board > 2 * own).all(), (own, board)
 
 
-def test_the_peg_view_shows_the_whole_peg_larger_where_it_lies_and_where_it_stands(needs_vulkan):
-    """What LiftPegUpright's view is for: at 64x64 the peg on several times the pixels of the task's own framing,
-    and never cut by the picture's edge, lying at each corner of its spawn square, standing upright there and where
-    the swing ends."""
+@pytest.mark.parametrize(
+    ("robot", "camera", "size", "gain", "swing_ends"),
+    [
+        # the Panda's swing ends up to 22 cm towards the arm, the peg's centre up to 1 cm above its upright height
+        ("panda", "base_camera", "64", 4.0, [(-0.22, y, 0.01) for y in (-0.1, 0.1)]),
+        # the SO-101's ends 8-12 cm out from the arm, up to 10 cm to either side (seeds 0-39); the picture's edge
+        # cuts the standing peg 11.5 cm out in both framings, and 9.5 cm to the side in this one only
+        ("so101", "front", "128", 1.3, [(x, 0.0, 0.003) for x in (0.085, 0.105)]),
+    ],
+)
+def test_the_peg_view_shows_the_whole_peg_larger_where_it_lies_and_where_it_stands(
+    needs_vulkan, robot, camera, size, gain, swing_ends
+):
+    """What LiftPegUpright's view is for: the peg on more pixels than the camera's own framing (several times for
+    the Panda's base camera, a third more for the SO-101's front camera, which frames the work closely already), and
+    never cut by the picture's edge, lying at each corner of its spawn square, standing upright there and where the
+    swing ends."""
     from bench.camera_view import touches_edge
     from kitbench.sim.scene import set_actor_pose
-    from kitbench.tasks.lift_peg_upright import LYING_QUAT, PEG_HALF_LENGTH, PEG_HALF_WIDTH, SPAWN_HALF_WIDTH
+    from kitbench.tasks.lift_peg_upright import (
+        LYING_QUAT,
+        PEG_HALF_LENGTH,
+        PEG_HALF_WIDTH,
+        ROBOT_SCALE,
+        SPAWN_HALF_WIDTH,
+    )
 
+    scale = ROBOT_SCALE.get(robot, 1.0)
     standing = (math.cos(math.pi / 4), 0.0, -math.sin(math.pi / 4), 0.0)  # the long (x) axis turned to world z
-    corners = [(x, y) for x in (-SPAWN_HALF_WIDTH, SPAWN_HALF_WIDTH) for y in (-SPAWN_HALF_WIDTH, SPAWN_HALF_WIDTH)]
-    poses = [([x, y, z], q) for x, y in corners for z, q in ((PEG_HALF_WIDTH, LYING_QUAT), (PEG_HALF_LENGTH, standing))]
-    # the expert's swing ends up to 22 cm towards the arm, the peg's centre up to 1 cm above its upright height
-    poses += [([-0.22, y, PEG_HALF_LENGTH + 0.01], standing) for y in (-SPAWN_HALF_WIDTH, SPAWN_HALF_WIDTH)]
+    half = SPAWN_HALF_WIDTH * scale
+    corners = [(x, y) for x in (-half, half) for y in (-half, half)]
+    lying, upright = PEG_HALF_WIDTH * scale, PEG_HALF_LENGTH * scale
+    poses = [([x, y, z], q) for x, y in corners for z, q in ((lying, LYING_QUAT), (upright, standing))]
+    poses += [([x, y, upright + dz], standing) for x, y, dz in swing_ends]
 
     def masks(camera_view):
-        sensors = PolicyEnvSettings(task=LPU, camera_size="64", camera_view=camera_view).sensor_configs
-        env = gym.make(f"kitbench/{LPU}", obs_mode="segmentation", sensor_configs=sensors)
+        settings = PolicyEnvSettings(task=LPU, robot=robot, camera_size=size, camera_view=camera_view)
+        env = gym.make(
+            f"kitbench/{LPU}", obs_mode="segmentation", robot_uids=robot, sensor_configs=settings.sensor_configs
+        )
         env.reset(seed=0)
         peg = [i for i, name in env.unwrapped.segmentation_id_map.items() if name == "peg"]
         out = []
         for position, quaternion in poses:
             set_actor_pose(env.unwrapped.peg, position, quaternion)
             obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))  # the arm held still
-            out.append(np.isin(obs["sensor_data"]["base_camera"]["segmentation"][..., 0], peg))
+            out.append(np.isin(obs["sensor_data"][camera]["segmentation"][..., 0], peg))
         env.close()
         return out
 
     own, close = masks(None), masks("peg")
-    assert sum(m.sum() for m in close) > 4 * sum(m.sum() for m in own)
+    assert sum(m.sum() for m in close) > gain * sum(m.sum() for m in own)
     for pose, mask in zip(poses, close, strict=True):
         assert mask.any() and not touches_edge(mask), pose
 

@@ -53,8 +53,7 @@ class PushCubeEnv(TabletopEnv):
         set_actor_pose(self.cube, [x, y, HALF_SIZE], [1.0, 0.0, 0.0, 0.0])
         self.goal = np.array([x + PUSH_DISTANCE, y, 0.0])
 
-    def _sensor_cameras(self):
-        return [CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 64, 48, math.pi / 2)]
+    sensor_cameras = (CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 64, 48, math.pi / 2),)
 
     def evaluate(self):
         distance = float(np.linalg.norm(self.cube.pose.p[:2] - self.goal[:2]))

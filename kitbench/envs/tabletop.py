@@ -6,10 +6,10 @@ observations, rendering) lives here once, and everything outside the task (recor
 the LeRobot plugin) asks the task through the public hooks below, never by its name.
 
 Hooks the base calls while building and stepping (protected, as in ManiSkill): `_load_task`,
-`_initialize_episode`, `_sensor_cameras`, `_render_camera`. Hooks the rest of kitbench calls (public):
-`evaluate`, `task_state`, `compute_dense_reward`, `task_description`, `target_object`, `failure_category`,
-`tracked_frames`, `episode_config`, `make_expert`, `segmentation_names`, and the class attributes `success_criteria`,
-`failure_categories`, `environment_state_keys`, `report_groups`.
+`_initialize_episode`, `_render_camera`, and the class attribute `sensor_cameras`. Hooks the rest of kitbench calls
+(public): `evaluate`, `task_state`, `compute_dense_reward`, `task_description`, `target_object`, `failure_category`,
+`tracked_frames`, `episode_config`, `make_expert`, `segmentation_names`, `observation_cameras`, and the class attributes
+`success_criteria`, `failure_categories`, `environment_state_keys`, `report_groups`, `camera_views`.
 """
 
 from __future__ import annotations
@@ -86,8 +86,11 @@ class TabletopEnv(gym.Env, abc.ABC):
     # Whether `_load_task` builds the task's object to `object_scale` (and `evaluate` measures it as built): the
     # `object_scale` perturbation is refused by tasks that do not.
     supports_object_scale: ClassVar[bool] = False
-    # Other framings of the task's own cameras, by name, that a recording may choose (`camera_view`): ManiSkill
-    # `sensor_configs` entries, {camera: {"pose": (x, y, z, qw, qx, qy, qz), "fov": radians}}.
+    # The task's own observation cameras (the robot adds its own): what image policies see.
+    sensor_cameras: ClassVar[tuple[CameraSpec, ...]] = ()
+    # Other framings of the observation cameras, by name, that a recording may choose (`camera_view`): ManiSkill
+    # `sensor_configs` entries, {camera: {"pose": (x, y, z, qw, qx, qy, qz), "fov": radians}}, of the task's own
+    # cameras or of a robot's (the SO-101's `front`); an env takes the entries of the cameras it has.
     camera_views: ClassVar[dict[str, dict[str, dict[str, Any]]]] = {}
     # The task's scripted expert: its class, or "module:Class" (as gymnasium's entry points), which keeps the
     # planner's module, which needs the task's geometry, from being imported by the task's own module; or a dict
@@ -188,10 +191,6 @@ class TabletopEnv(gym.Env, abc.ABC):
     @abc.abstractmethod
     def _initialize_episode(self, rng: np.random.Generator, options: dict) -> None:
         """Place the task's objects for a new episode, drawing only from `rng` (the episode's seed)."""
-
-    def _sensor_cameras(self) -> list[CameraSpec]:
-        """The task's own observation cameras (the robot adds its own): what image policies see."""
-        return []
 
     def _render_camera(self) -> CameraSpec:
         """The third-person camera of `render()` (videos): framed on the task's workspace."""
@@ -540,8 +539,16 @@ class TabletopEnv(gym.Env, abc.ABC):
         return tuple(configured(spec, self.sensor_configs) for spec in self._camera_specs())
 
     def _camera_specs(self) -> tuple[CameraSpec, ...]:
-        task = self._sensor_cameras() if self._robot_spec.task_cameras else []
-        return (*task, *self._robot_spec.cameras)
+        return self._cameras_with(self._robot_spec)
+
+    @classmethod
+    def _cameras_with(cls, robot: RobotSpec) -> tuple[CameraSpec, ...]:
+        return (*(cls.sensor_cameras if robot.task_cameras else ()), *robot.cameras)
+
+    @classmethod
+    def observation_cameras(cls, robot_uid: str) -> tuple[str, ...]:
+        """The observation cameras this task has with a robot (the task's, then the robot's), without an env."""
+        return tuple(spec.name for spec in cls._cameras_with(ROBOTS[robot_uid]))
 
     @property
     def robot_uid(self) -> str:

@@ -131,6 +131,7 @@ class AssemblingKitsEnv(TabletopEnv):
     failure_categories = ("never_grasped", "dropped", "not_transported", "misaligned", "not_inserted")
     report_groups = ("shape_id", "shape")
     expert = "kitbench.planning.assembling_kits:AssemblingKitsPlanner"
+    sensor_cameras = (CameraSpec.looking_at("base_camera", [0.2, 0, 0.4], [0, 0, 0], *OBSERVATION_SIZE, math.pi / 2),)
     # "board": the base camera in front of the board, lower and nearer than ManiSkill's (the task's base_camera),
     # framing the board and the loose shape's spawn area: at 64x64 a carried shape covers 28 pixels (7 in
     # ManiSkill's framing) and the slot is clear of the arm in 95% of the carry's frames (64%); bench/camera_view.py
@@ -203,9 +204,6 @@ class AssemblingKitsEnv(TabletopEnv):
         return frames
 
     # -- building ------------------------------------------------------------------------------
-    def _sensor_cameras(self):
-        return [CameraSpec.looking_at("base_camera", [0.2, 0, 0.4], [0, 0, 0], *OBSERVATION_SIZE, math.pi / 2)]
-
     def _render_camera(self):
         return CameraSpec.looking_at("render_camera", [0.3, 0.3, 0.8], [0.0, 0.0, 0.1], 512, 512, 1.0)
 
