@@ -119,8 +119,9 @@ def test_the_board_view_puts_more_of_the_board_in_the_picture(needs_vulkan):
     [
         # the Panda's swing ends up to 22 cm towards the arm, the peg's centre up to 1 cm above its upright height
         ("panda", "base_camera", "64", 4.0, [(-0.22, y, 0.01) for y in (-0.1, 0.1)]),
-        # the SO-101's ends 8-12 cm out from the arm, up to 10 cm to either side (seeds 0-39); the picture's edge
-        # cuts the standing peg 11.5 cm out in both framings, and 9.5 cm to the side in this one only
+        # the SO-101's ends 8-12 cm past the spawn centre away from the arm, up to 10 cm to either side (seeds
+        # 0-39); the picture's edge cuts the standing peg 11.5 cm past it in both framings, and 9.5 cm to the side
+        # in this one only
         ("so101", "front", "128", 1.3, [(x, 0.0, 0.003) for x in (0.085, 0.105)]),
     ],
 )

@@ -38,6 +38,7 @@ class PushCubeEnv(TabletopEnv):
     environment_state_keys = ("cube_pose", "goal_pos")
     success_criteria = ("at_goal",)
     max_dense_reward = 1.0
+    sensor_cameras = (CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 64, 48, math.pi / 2),)
 
     def _load_task(self, scene, render):
         builder = scene.create_actor_builder()
@@ -52,8 +53,6 @@ class PushCubeEnv(TabletopEnv):
         x, y = rng.uniform(-0.1, 0.0), rng.uniform(-0.1, 0.1)
         set_actor_pose(self.cube, [x, y, HALF_SIZE], [1.0, 0.0, 0.0, 0.0])
         self.goal = np.array([x + PUSH_DISTANCE, y, 0.0])
-
-    sensor_cameras = (CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], 64, 48, math.pi / 2),)
 
     def evaluate(self):
         distance = float(np.linalg.norm(self.cube.pose.p[:2] - self.goal[:2]))

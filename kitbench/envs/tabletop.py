@@ -138,7 +138,9 @@ class TabletopEnv(gym.Env, abc.ABC):
             raise KitbenchError(f"pointcloud_range must be a positive number of metres, got {pointcloud_range!r}")
         self.pointcloud_range = float(pointcloud_range)
         self._robot_spec = ROBOTS[robot_uids]
-        self.sensor_configs = check_sensor_configs(sensor_configs, [s.name for s in self._camera_specs()])
+        self.sensor_configs = check_sensor_configs(
+            sensor_configs, [s.name for s in self._cameras_with(self._robot_spec)]
+        )
         self._textures = camera_textures(obs_mode)
         self.obs_mode = obs_mode
         self.control_mode = control_mode
@@ -536,10 +538,7 @@ class TabletopEnv(gym.Env, abc.ABC):
     def camera_specs(self) -> tuple[CameraSpec, ...]:
         """Every camera an image observation has (the task's, then the robot's), whatever this env's obs mode, at
         the size, field of view and pose `sensor_configs` asks."""
-        return tuple(configured(spec, self.sensor_configs) for spec in self._camera_specs())
-
-    def _camera_specs(self) -> tuple[CameraSpec, ...]:
-        return self._cameras_with(self._robot_spec)
+        return tuple(configured(spec, self.sensor_configs) for spec in self._cameras_with(self._robot_spec))
 
     @classmethod
     def _cameras_with(cls, robot: RobotSpec) -> tuple[CameraSpec, ...]:
