@@ -5,6 +5,7 @@ from cameras that stood elsewhere in training."""
 
 from __future__ import annotations
 
+import json
 import math
 from types import SimpleNamespace
 
@@ -253,3 +254,5 @@ def test_an_evaluations_saved_dataset_keeps_the_size_and_view_it_rendered(needs_
     info = RecordingInfo.read(data)
     assert (info.camera_size, info.camera_view) == ("32x32", "board")
     assert "--camera-size 32x32 --camera-view board" in info.made_by
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert (report["suite"]["camera_size"], report["suite"]["camera_view"]) == ("32x32", "board")

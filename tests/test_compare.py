@@ -20,7 +20,7 @@ from kitbench.errors import KitbenchError
 from kitbench.evaluation.compare import compare_reports
 from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
-from kitbench.evaluation.report import build_report
+from kitbench.evaluation.report import build_report, markdown
 from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.significance import newcombe_interval, newcombe_paired_interval
 from kitbench.evaluation.suite import Suite, load_suite
@@ -310,6 +310,23 @@ def test_different_suites_on_request_warn(tmp_path, capsys):
     )
     assert "headline: success by Fisher's exact test, unpaired (the reports scored different seeds)" in out
     assert out.splitlines()[-1].startswith("verdict: no significant difference")
+
+
+def test_policies_scored_from_other_cameras_compare_paired_with_a_warning(tmp_path, capsys):
+    # each policy is scored from the pictures it was trained on: same episodes, other cameras
+    a = make_report(LIFT, outcomes(3, 6), obs_mode="rgb")
+    b = make_report(LIFT, outcomes(3, 6), obs_mode="rgb", camera_size="96", camera_view="peg")
+    assert (b["suite"]["camera_size"], b["suite"]["camera_view"]) == ("96x96", "peg")
+    assert a["suite"]["camera_size"] is a["suite"]["camera_view"] is None
+    assert cli.main(["compare", *pair(tmp_path, a, b)]) == 0
+    out, err = capsys.readouterr()
+    assert err == (
+        "kitbench compare: warning: the cameras differ: camera_size A None, B '96x96'\n"
+        "kitbench compare: warning: the cameras differ: camera_view A None, B 'peg'\n"
+    )
+    assert "McNemar" in out
+    assert "obs `rgb` (cameras `96x96`, view `peg`), control" in markdown(b)
+    assert "obs `rgb`, control" in markdown(a)
 
 
 def test_other_versions_are_a_warning_not_an_error(tmp_path, capsys):

@@ -46,6 +46,9 @@ SHORT_NAMES = {"fisher": "Fisher", "barnard": "Barnard", "mcnemar": "McNemar"}
 SUITE_FIELDS = ("task", "seeds", "obs_mode", "control_mode", "reward_mode")
 # Fields newer suites have, with the value an older report's suite had without them.
 SUITE_DEFAULTS = {"settle_steps": 0, "perturbations": {}, "robot": None}
+# What the cameras rendered (None: the task's own size and framing). Fitted to each policy's training data, so
+# two policies trained on different pictures are compared on the same episodes: a warning, not a refusal.
+CAMERA_FIELDS = ("camera_size", "camera_view")
 BETTER, WORSE, NONE = "better", "worse", "none"
 
 
@@ -573,6 +576,11 @@ def compare_reports(
         f"{key} differs: A {a.get(key)!r}, B {b.get(key)!r}"
         for key in ("report_version", "kitbench_version")
         if a.get(key) != b.get(key)
+    ]
+    warnings += [
+        f"the cameras differ: {key} A {a['suite'].get(key)!r}, B {b['suite'].get(key)!r}"
+        for key in CAMERA_FIELDS
+        if a["suite"].get(key) != b["suite"].get(key)
     ]
     for path, r in ((pa, a), (pb, b)):
         if isinstance(r["report_version"], int) and r["report_version"] > REPORT_VERSION:

@@ -257,6 +257,16 @@ def _robustness_lines(report: dict) -> list[str]:
     return lines
 
 
+def _cameras_text(suite: dict) -> str:
+    """The cameras' size and view where the suite set them (the task's own otherwise)."""
+    parts = [
+        f"{label} `{suite[key]}`"
+        for key, label in (("camera_size", "cameras"), ("camera_view", "view"))
+        if suite.get(key)
+    ]
+    return (" (" + ", ".join(parts) + ")") if parts else ""
+
+
 def _main_failure(categories: dict[str, int]) -> str:
     worst = max(categories.items(), key=lambda kv: kv[1], default=("", 0))
     return f"{worst[0]} ({worst[1]})" if worst[1] else "–"
@@ -270,7 +280,8 @@ def markdown(report: dict) -> str:
         f"Suite `{suite['name']}`"
         + (f" ({suite['source']})" if suite.get("source") else "")
         + f": {report['episodes']} episodes, seeds {suite['seeds'][0]}…{suite['seeds'][-1]}, "
-        f"robot `{suite.get('robot', '?')}`, obs `{suite['obs_mode']}`, control `{suite['control_mode']}`, "
+        f"robot `{suite.get('robot', '?')}`, obs `{suite['obs_mode']}`{_cameras_text(suite)}, "
+        f"control `{suite['control_mode']}`, "
         f"reward `{suite['reward_mode']}`. "
         f"kitbench {report['kitbench_version']}.",
         "",

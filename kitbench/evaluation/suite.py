@@ -123,6 +123,8 @@ class Suite(EnvSettings, SettleSettings):
             "description": self.description,
             "settle_steps": self.settle_steps,
             "robot": self.robot_uid,
+            "camera_size": self.camera_size,
+            "camera_view": self.camera_view,
             "perturbations": {name: list(levels) for name, levels in self.perturbations},
             "source": self.source,
         }
