@@ -141,6 +141,7 @@ def test_reports_without_physics_errors_still_list_the_category():
     assert report["failure_categories"] == {
         "never_grasped": 0,
         "dropped": 1,
+        "released": 0,
         "not_upright": 0,
         "wrong_height": 0,
         "physics_error": 0,

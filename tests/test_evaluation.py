@@ -145,6 +145,8 @@ def _ak_info(pos, rot, slot, dist=0.1):
 )
 def test_assembling_kits_failure_categories(ak_env, info, ever, held, expected):
     category = failure_category(ak_env, info, GraspHistory(ever, held))
+    if expected == "dropped":  # the same end, the hand having opened as the grasp ended
+        assert failure_category(ak_env, info, GraspHistory(ever, held, released=True)) == "released"
     assert category == expected
     assert category is None or category in ak_env.unwrapped.failure_categories
 
@@ -168,6 +170,50 @@ def test_lift_peg_failure_categories(lpu_env, tilt, z, ever, held, expected):
         "z_error": z,
     }
     assert failure_category(lpu_env, info, GraspHistory(ever, held)) == expected
+    if expected == "dropped":
+        assert failure_category(lpu_env, info, GraspHistory(ever, held, released=True)) == "released"
+
+
+class _LetGoMidSwing:
+    """The Panda's expert until `steps` into its swing; then it opens the hand (`how="open"`), or the peg is pulled
+    out of the closed hand (`how="slip"`)."""
+
+    def __init__(self, how: str, steps: int = 4):
+        from kitbench.policies.expert import ExpertPolicy
+
+        self.expert, self.how, self.steps = ExpertPolicy(), how, steps
+
+    def reset(self, env, seed, obs, info):
+        self.env, self.swinging = env, 0
+        self.expert.reset(env, seed, obs, info)
+
+    def act(self, obs):
+        action = self.expert.act(obs)
+        if self.expert.phase == "swing" or self.swinging:
+            self.swinging += 1
+        if self.swinging > self.steps:
+            if self.how == "open":
+                action[-1] = -1.0
+            elif self.swinging == self.steps + 1:  # out of the fingers, as a slip ends
+                import sapien
+
+                from kitbench.tasks.lift_peg_upright import LYING_QUAT, PEG_HALF_WIDTH
+
+                # lying on the table well clear of the hand
+                self.env.unwrapped.peg.set_pose(sapien.Pose([0.0, 0.3, PEG_HALF_WIDTH], LYING_QUAT))
+        return action
+
+
+@pytest.mark.parametrize(("how", "expected"), [("open", "released"), ("slip", "dropped")])
+def test_a_peg_let_go_mid_swing_is_released_and_one_pulled_from_the_closed_hand_dropped(how, expected):
+    from kitbench.evaluation.episode import evaluate_episode
+
+    env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_joint_pos")
+    try:
+        result = evaluate_episode(env, _LetGoMidSwing(how), seed=1)
+    finally:
+        env.close()
+    assert not result.success and result.failure == expected
 
 
 def test_a_category_outside_the_tasks_list_is_a_bug(lpu_env, monkeypatch):

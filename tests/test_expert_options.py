@@ -116,3 +116,61 @@ def test_a_recipe_gives_options_as_a_table_or_as_command_line_pairs(tmp_path):
     recipe.write_text(base + "policy_options = 5\n")
     with pytest.raises(KitbenchError, match=r"policy_options is 5; give a table \(\{close_steps = 8\}\)"):
         load_recipe(recipe)
+
+
+def _held_at(robot: str, options: dict | None, seed: int) -> tuple[float, float, bool]:
+    """One LiftPegUpright episode of the expert: where along the peg's axis its TCP is as the hand closes (m, the
+    sign dropped), the TCP's height as the episode ends (it ends as the peg stands), and whether the peg stood up."""
+    from kitbench.geometry import quat_to_matrix
+
+    env = gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", control_mode="pd_joint_pos", robot_uids=robot)
+    u = env.unwrapped
+    try:
+        obs, info = env.reset(seed=seed)
+        expert = ExpertPolicy(options)
+        expert.reset(env, seed, obs, info)
+        along = None
+        success = False
+        for _ in range(env.unwrapped.max_episode_steps):
+            obs, _, terminated, truncated, info = env.step(expert.act(obs))
+            if along is None and expert.phase == "grasp":
+                peg = u.peg.pose
+                offset = quat_to_matrix(peg.q).T @ (u.robot.tcp_pose().p - peg.p)
+                along = abs(float(offset[0]))
+            success = success or bool(info["success"])
+            if terminated or truncated:
+                break
+        assert along is not None
+        return along, float(u.robot.tcp_pose().p[2]), success
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(("robot", "spread"), [("panda", 0.02), ("so101", 0.3)])
+def test_a_grasp_spread_holds_each_peg_where_its_seed_draws_and_sets_it_down_by_it(robot, spread):
+    """`grasp_offset_spread`: demonstrations that hold the peg anywhere along it, as a learned grasp does."""
+    seeds = range(4)
+    fixed = [_held_at(robot, None, seed) for seed in seeds]
+    spread_runs = [_held_at(robot, {"grasp_offset_spread": spread}, seed) for seed in seeds]
+    assert all(success for *_, success in fixed + spread_runs)
+    # without the option every grasp is at the config's one offset; with it, one per episode
+    assert max(a for a, *_ in fixed) - min(a for a, *_ in fixed) < 0.002
+    along = [a for a, *_ in spread_runs]
+    assert max(along) - min(along) > 0.01
+    # the hand stands the peg up higher or lower by where it holds it: the set-down follows the grasp
+    heights = [h for _, h, _ in spread_runs]
+    assert max(heights) - min(heights) > 0.005
+    # the draw is the episode's: the same seed holds the peg at the same place
+    assert _held_at(robot, {"grasp_offset_spread": spread}, 2)[0] == pytest.approx(along[2], abs=1e-6)
+
+
+def test_a_negative_grasp_spread_is_one_line():
+    env = gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", robot_uids="so101")
+    try:
+        env.reset(seed=0)
+        with pytest.raises(KitbenchError) as error:
+            env.unwrapped.make_expert({"grasp_offset_spread": -0.1})
+    finally:
+        env.close()
+    assert "grasp_offset_spread must be >= 0 (0: no spread), got -0.1" in str(error.value)
+    assert "\n" not in str(error.value)

@@ -16,9 +16,9 @@ PHYSICS_ERROR = "physics_error"
 
 
 def watch_grasp(env, history: GraspHistory) -> None:
-    """Add one step to `history`: does the robot hold the task's object now?"""
+    """Add one step to `history`: does the robot hold the task's object now, and how open is its hand?"""
     env = as_kitbench(env)
-    history.update(env.robot.is_grasping(env.target_object))
+    history.update(env.robot.is_grasping(env.target_object), env.robot.gripper_opening())
 
 
 def criteria(env, info: dict) -> dict[str, bool]:

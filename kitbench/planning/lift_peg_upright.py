@@ -34,7 +34,7 @@ import numpy as np
 from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import PhasePlanner
+from kitbench.planning.planner import PhasePlanner, check_spread, drawn_within
 from kitbench.planning.poses import (
     HAND_DOWN,
     cubic_bezier,
@@ -53,6 +53,9 @@ class PlannerConfig:
 
     grasp_tilt: float = 0.0  # fingertips tilted forward (towards the peg's far end), rad
     grasp_offset: float = 0.0  # TCP along the peg's axis from its centre, m (negative: towards the robot)
+    # each episode's grasp_offset is drawn uniformly within this of it, m: demonstrations that hold the peg anywhere
+    # along it, as a learned grasp does, and set it down by where it is held (docs/learnability.md)
+    grasp_offset_spread: float = 0.0
     grasp_height: float = 0.0  # TCP above the peg's axis, m
     descend_height: float = 0.05  # the approach ends with a vertical descent from this high above the grasp, m
     turn_by: float = 0.6  # fraction of the approach curve by which the hand has turned to the grasp orientation
@@ -72,6 +75,9 @@ class PlannerConfig:
     release_press: float = 0.004
     release_steps: int = 2  # release: open and wait for the fingers to leave the peg
 
+    def __post_init__(self) -> None:
+        check_spread("grasp_offset_spread", self.grasp_offset_spread)
+
 
 class LiftPegUprightPlanner(PhasePlanner):
     """The LiftPegUpright-v1 expert (module docstring); its public API is `PhasePlanner`'s.
@@ -86,6 +92,9 @@ class LiftPegUprightPlanner(PhasePlanner):
     def default_config(cls) -> PlannerConfig:
         return PlannerConfig()
 
+    def on_reset(self) -> None:
+        self.grasp_offset = drawn_within(self.rng, self.cfg.grasp_offset, self.cfg.grasp_offset_spread)
+
     # -- state ----------------------------------------------------------------------------------------------------
     def _peg_frame(self) -> np.ndarray:
         """The lying peg's frame: origin on the table under its centre, x along its axis pointing away from the
@@ -98,7 +107,7 @@ class LiftPegUprightPlanner(PhasePlanner):
 
     def _grasp_pose(self) -> np.ndarray:
         c = self.cfg
-        local = make_pose(rot_y(-c.grasp_tilt) @ HAND_DOWN, [c.grasp_offset, 0.0, PEG_HALF_WIDTH + c.grasp_height])
+        local = make_pose(rot_y(-c.grasp_tilt) @ HAND_DOWN, [self.grasp_offset, 0.0, PEG_HALF_WIDTH + c.grasp_height])
         return self._peg_frame() @ local
 
     # -- phases ---------------------------------------------------------------------------------------------------

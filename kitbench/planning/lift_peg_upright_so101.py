@@ -28,7 +28,7 @@ import numpy as np
 from kitbench.geometry import tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import PhasePlanner
+from kitbench.planning.planner import PhasePlanner, check_spread, drawn_within
 from kitbench.planning.poses import cubic_bezier, interpolate_pose, make_pose, smoothstep, upright_correction
 from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
 
@@ -39,6 +39,9 @@ class PlannerConfig:
 
     # TCP along the peg's axis from its centre towards its outer end, fraction of the half-length
     grasp_offset: float = 0.3
+    # each episode's grasp_offset is drawn uniformly within this of it (same unit): demonstrations that hold the peg
+    # anywhere along it, as a learned grasp does, and set it down by where it is held (docs/learnability.md)
+    grasp_offset_spread: float = 0.0
     # the fixed jaw comes down this far beside the peg, not touching it: the closing jaw pushes the peg across onto
     # it, so a hand a few millimetres off (a learned policy's) still grasps instead of landing on the peg
     fixed_jaw_clearance: float = 0.006
@@ -62,6 +65,9 @@ class PlannerConfig:
     release_press: float = 0.003  # set down: the hand goes this far below the peg's contact height, m
     release_steps: int = 3  # release: open and wait for the jaw to leave the peg
 
+    def __post_init__(self) -> None:
+        check_spread("grasp_offset_spread", self.grasp_offset_spread)
+
 
 class SO101LiftPegUprightPlanner(PhasePlanner):
     """The LiftPegUpright-v1 expert for the SO-101 (module docstring); its public API is `PhasePlanner`'s.
@@ -79,6 +85,7 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
     def on_reset(self) -> None:
         scale = self.env.peg_scale
         self.half_length, self.half_width = PEG_HALF_LENGTH * scale, PEG_HALF_WIDTH * scale
+        self.grasp_offset = drawn_within(self.rng, self.cfg.grasp_offset, self.cfg.grasp_offset_spread)
 
     # -- geometry -------------------------------------------------------------------------------------------------
     def _outward(self, peg: np.ndarray) -> np.ndarray:
@@ -98,7 +105,7 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
         best, best_cost = None, np.inf
         for x in (outward, -outward):
             y = np.cross(down, x)
-            centre = peg[:3, 3] + self.cfg.grasp_offset * self.half_length * outward
+            centre = peg[:3, 3] + self.grasp_offset * self.half_length * outward
             beside = self.half_width + self.cfg.fixed_jaw_clearance
             position = centre - beside * y + [0.0, 0.0, self.cfg.grasp_height]
             pose = make_pose(np.column_stack([x, y, down]), position)

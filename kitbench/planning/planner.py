@@ -28,6 +28,19 @@ from kitbench.planning.poses import pose_matrix
 # LiftPegUpright seeds 0-99: 0/100 at 0.98 and at 0.7, 100/100 at 0.6 (median 41 steps of 50, max 46);
 # AssemblingKits seeds 0-99 at 0.6: 100/100 (median 55 steps of 200).
 MEASURED_DELTA_TRACKING = 0.6
+# mixed into the episode seed for the expert's own random draws (`PhasePlanner.rng`)
+EXPERT_STREAM = 0x6578_7074
+
+
+def check_spread(name: str, spread: float) -> None:
+    """An expert option that spreads a setting over episodes (`drawn_within`) is a width, 0 or more."""
+    if not spread >= 0.0:
+        raise KitbenchError(f"expert option {name} must be >= 0 (0: no spread), got {spread!r}")
+
+
+def drawn_within(rng: np.random.Generator, value: float, spread: float) -> float:
+    """`value`, or with a `spread` a uniform draw within it of `value` (nothing drawn without one)."""
+    return value + float(rng.uniform(-spread, spread)) if spread else value
 
 
 class PhasePlanner(ABC):
@@ -115,10 +128,14 @@ class PhasePlanner(ABC):
         the simulated state now. This is where a task's expert closes the loop, e.g. retrying a missed grasp."""
 
     def on_reset(self) -> None:  # noqa: B027  (an optional hook: most experts keep no per-episode state)
-        """Clear task-specific per-episode state; runs at the end of every `reset` (nothing by default)."""
+        """Clear task-specific per-episode state and make the episode's draws from `rng`; runs at the end of every
+        `reset` (nothing by default)."""
 
     # -- public API -----------------------------------------------------------------------------------------------
-    def reset(self, obs=None, info=None) -> None:
+    def reset(self, obs=None, info=None, seed: int | None = None) -> None:
+        """Start an episode; `seed` (the env's reset seed) seeds `rng`, the expert's own draws for the episode,
+        kept apart from the env's stream so that they never echo the scene's."""
+        self.rng = np.random.default_rng([EXPERT_STREAM, 0 if seed is None else seed])
         self.sequencer.reset()
         self.grasp_attempts = 0
         self.failure: str | None = None

@@ -40,7 +40,7 @@ class ExpertPolicy:
         check_has_expert(env)  # the options are checked where the planner's config is built from them
         self._env = as_kitbench(env)
         self.planner = self._env.make_expert(self.options)
-        self.planner.reset(obs, info)
+        self.planner.reset(obs, info, seed)
 
     def act(self, obs):
         target = self.planner.act(obs)

@@ -128,7 +128,7 @@ class AssemblingKitsEnv(TabletopEnv):
         "obj_to_goal_fine",
     )
     success_criteria = ("pos_correct", "rot_correct", "in_slot")
-    failure_categories = ("never_grasped", "dropped", "not_transported", "misaligned", "not_inserted")
+    failure_categories = ("never_grasped", "dropped", "released", "not_transported", "misaligned", "not_inserted")
     report_groups = ("shape_id", "shape")
     expert = "kitbench.planning.assembling_kits:AssemblingKitsPlanner"
     sensor_cameras = (CameraSpec.looking_at("base_camera", [0.2, 0, 0.4], [0, 0, 0], *OBSERVATION_SIZE, math.pi / 2),)
@@ -186,7 +186,8 @@ class AssemblingKitsEnv(TabletopEnv):
 
     def failure_category(self, info: dict, grasp: GraspHistory) -> str | None:
         """From the last stage backwards: over the slot but not down in it, brought to the slot but off in
-        position or yaw, never grasped, carried but not brought, dropped."""
+        position or yaw, never grasped, carried but not brought, let go away from the slot (`released`) or slipped
+        out of the closed hand (`dropped`)."""
         if info["success"]:
             return None
         if info["pos_correct"] and info["rot_correct"]:
@@ -195,7 +196,9 @@ class AssemblingKitsEnv(TabletopEnv):
             return "misaligned"
         if not grasp.ever_grasped:
             return "never_grasped"
-        return "not_transported" if grasp.held_at_end else "dropped"
+        if grasp.held_at_end:
+            return "not_transported"
+        return "released" if grasp.released else "dropped"
 
     def tracked_frames(self):
         frames = super().tracked_frames()

@@ -82,7 +82,7 @@ class LiftPegUprightEnv(TabletopEnv):
     robot_max_episode_steps: ClassVar[dict[str, int]] = {"fetch": 170, "so101": 100}
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
-    failure_categories = ("never_grasped", "dropped", "not_upright", "wrong_height")
+    failure_categories = ("never_grasped", "dropped", "released", "not_upright", "wrong_height")
     sensor_cameras = (
         CameraSpec.looking_at("base_camera", [0.3, 0, 0.6], [-0.1, 0, 0.1], *OBSERVATION_SIZE, math.pi / 2),
     )
@@ -130,13 +130,14 @@ class LiftPegUprightEnv(TabletopEnv):
         return ("peg",)
 
     def failure_category(self, info: dict, grasp: GraspHistory) -> str | None:
-        """Stages: grasp, keep holding, turn upright, set at the right height."""
+        """Stages: grasp, keep holding (`dropped`: it slipped out of the closed hand; `released`: the hand let go
+        before the peg stood), turn upright, set at the right height."""
         if info["success"]:
             return None
         if not grasp.ever_grasped:
             return "never_grasped"
         if not grasp.held_at_end:
-            return "dropped"
+            return "released" if grasp.released else "dropped"
         return "not_upright" if not info["upright"] else "wrong_height"
 
     def task_description(self) -> str:

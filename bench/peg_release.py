@@ -1,0 +1,159 @@
+"""Where a LiftPegUpright policy holds the peg, and how upright the peg is when the hand lets it go, seed by seed.
+
+    python bench/peg_release.py --policy lerobot:<checkpoint> --seeds 1000000:1000020 [--out rows.json]
+    python bench/peg_release.py --policy expert --robot so101 --seeds 1000000:1000020 [--policy-option K=V ...]
+
+For each seed the policy plays the episode to its end (the task ends it at the first success). It prints where the
+hand closed along the peg (the TCP's distance from the peg's centre along its axis, mm, three steps after the
+grasp began), and at the step the grasp ended: the peg's tilt from vertical (the success test wants under
+`MAX_TILT`), the peg's centre above its standing height (mm), and whether the hand opened in that step (let go) or
+the peg slipped from a closed hand; then how the episode ended. A peg still held when the episode ends reads "held".
+
+The episodes are played one at a time, so an episode `kitbench eval` scored in a batch may come out otherwise; each
+row says how the replay ended. Exit status: 2 for a bad argument.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from kitbench.errors import KitbenchError
+
+TASK = "LiftPegUpright-v1"
+GRASP_READ = 3  # steps after the grasp began at which the hand's place along the peg is read
+
+
+def play(env, policy, seed: int) -> dict:
+    """One episode of `policy` from `seed`: the grasp's place along the peg, the peg as the grasp ended, the end."""
+    from kitbench.envs.grasp import GraspHistory
+    from kitbench.geometry import quat_to_matrix
+    from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH
+
+    u = env.unwrapped
+    obs, info = env.reset(seed=seed)
+    policy.reset(env, seed, obs, info)
+    history, grasped_at, along, lost = GraspHistory(), None, None, None
+    standing = u.peg_scale * PEG_HALF_LENGTH
+    for step in range(u.max_episode_steps):
+        obs, _, terminated, truncated, info = env.step(policy.act(obs))
+        was_held = history.held_at_end
+        history.update(u.robot.is_grasping(u.peg), u.robot.gripper_opening())
+        peg = u.peg.pose
+        if history.held_at_end and grasped_at is None:
+            grasped_at = step
+        if grasped_at is not None and along is None and step >= grasped_at + GRASP_READ - 1:
+            offset = quat_to_matrix(peg.q).T @ (np.asarray(u.robot.tcp_pose().p) - np.asarray(peg.p))
+            along = abs(float(offset[0])) * 1000
+        if was_held and not history.held_at_end:
+            lost = {
+                "step": step,
+                "tilt_deg": math.degrees(float(info["tilt"])),
+                "above_mm": (float(peg.p[2]) - standing) * 1000,
+                "let_go": history.released,
+            }
+        if terminated or truncated:
+            break
+    return {
+        "seed": seed,
+        "grasped_at": grasped_at,
+        "along_mm": along,
+        "lost": lost if not history.held_at_end else None,
+        "success": bool(info["success"]),
+        "final_tilt_deg": math.degrees(float(info["tilt"])),
+    }
+
+
+def measure(policy_spec: str, seeds: list[int], robot: str | None, options: dict) -> tuple[list[dict], str]:
+    from kitbench.env_settings import PolicyEnvSettings
+    from kitbench.policies.registry import make_policy
+    from kitbench.registration import make_env
+
+    policy = make_policy(policy_spec, options=options)
+    needs = policy.requirements() if hasattr(policy, "requirements") else {}
+    robot = needs.get("robot") or robot
+    cameras = PolicyEnvSettings(
+        task=TASK, robot=robot, camera_size=needs.get("camera_size"), camera_view=needs.get("camera_view")
+    )
+    env = make_env(
+        TASK,
+        obs_mode=needs.get("obs_mode", "state"),
+        control_mode=needs.get("control_mode", "pd_joint_pos"),
+        robot_uids=robot,
+        sensor_configs=cameras.sensor_configs,
+    )
+    try:
+        return [play(env, policy, seed) for seed in seeds], env.unwrapped.robot_uid
+    finally:
+        env.close()
+
+
+def print_rows(rows: list[dict]) -> None:
+    from kitbench.tasks.lift_peg_upright import MAX_TILT
+
+    print(f"{'seed':>8}  along  {'as the grasp ended':<38} end")
+    for r in rows:
+        along = "  -  " if r["along_mm"] is None else f"{r['along_mm']:5.1f}"
+        lost = r["lost"]
+        if r["grasped_at"] is None:
+            cell = "never grasped"
+        elif lost is None:
+            cell = "held"
+        else:
+            how = "let go" if lost["let_go"] else "slipped"
+            cell = f"t={lost['step']:3d} {how:<7} tilt {lost['tilt_deg']:4.1f} deg, {lost['above_mm']:5.1f} mm up"
+        end = "success" if r["success"] else f"failed, tilt {r['final_tilt_deg']:.0f} deg"
+        print(f"{r['seed']:>8}  {along}  {cell:<38} {end}")
+    let_go = [r for r in rows if r["lost"] and r["lost"]["let_go"]]
+    leaning = [r for r in let_go if r["lost"]["tilt_deg"] > math.degrees(MAX_TILT)]
+    print(
+        f"{len(let_go)} of {len(rows)} let go of the peg, {len(leaning)} of them while it leaned past the success "
+        f"test's {math.degrees(MAX_TILT):.1f} deg; "
+        f"{sum(1 for r in rows if r['lost'] and not r['lost']['let_go'])} slipped; {sum(r['success'] for r in rows)} "
+        "succeeded"
+    )
+    print("(along: the hand's place along the peg from its centre, mm; up: the peg's centre above its standing height)")
+
+
+def _seeds(text: str) -> list[int]:
+    try:
+        if ":" in text:
+            start, stop = (int(s) for s in text.split(":"))
+            return list(range(start, stop))
+        return [int(s) for s in text.split(",")]
+    except ValueError:
+        raise KitbenchError(f"--seeds {text!r} must be START:STOP or comma-separated integers") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--policy", required=True, help="lerobot:<checkpoint> or expert")
+    parser.add_argument("--seeds", required=True, help="START:STOP or comma-separated seeds")
+    parser.add_argument("--robot", help="for a policy without a checkpoint (default the task's first)")
+    parser.add_argument("--policy-option", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--out", help="also write the rows to this JSON file")
+    args = parser.parse_args(argv)
+    try:
+        seeds = _seeds(args.seeds)
+        if not seeds:
+            raise KitbenchError(f"--seeds {args.seeds!r} names no seed")
+        from kitbench.policies.lerobot_policy import parse_option
+
+        rows, robot = measure(args.policy, seeds, args.robot, dict(parse_option(o) for o in args.policy_option))
+    except (KitbenchError, OSError, ValueError) as exc:
+        print(f"peg_release: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    print(f"{args.policy} on {TASK} ({robot}):")
+    print_rows(rows)
+    if args.out:
+        Path(args.out).write_text(json.dumps({"policy": args.policy, "robot": robot, "rows": rows}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,35 @@
+"""bench/peg_release.py: where a LiftPegUpright policy holds the peg and how it lets it go, seed by seed."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.peg_release import main, measure, play
+
+
+def test_the_so101_expert_holds_the_peg_where_its_config_says_and_stands_it_up_held():
+    rows, robot = measure("expert", [0, 1], "so101", {})
+    assert robot == "so101"
+    for row in rows:
+        # grasp_offset 0.3 of the 6 cm half-length: 18 mm out from the centre
+        assert row["along_mm"] == pytest.approx(18.0, abs=2.0)
+        assert row["success"] and row["lost"] is None
+
+
+def test_a_hand_opened_mid_swing_reads_as_let_go_while_the_peg_leans():
+    from kitbench.registration import make_env
+    from tests.test_evaluation import _LetGoMidSwing
+
+    env = make_env("LiftPegUpright-v1", control_mode="pd_joint_pos")
+    try:
+        row = play(env, _LetGoMidSwing("open"), 1)
+    finally:
+        env.close()
+    assert not row["success"] and row["lost"]["let_go"]
+    assert row["lost"]["tilt_deg"] > 10.0  # four steps into the swing the peg is still far from upright
+
+
+def test_bad_seeds_are_one_line(capsys):
+    assert main(["--policy", "expert", "--seeds", "a:b"]) == 2
+    err = capsys.readouterr().err
+    assert "--seeds 'a:b' must be START:STOP or comma-separated integers" in err and err.count("\n") == 1
