@@ -32,6 +32,7 @@ GRASP_READ = 3  # steps after the grasp began at which the hand's place along th
 def play(env, policy, seed: int) -> dict:
     """One episode of `policy` from `seed`: the grasp's place along the peg, the peg as the grasp ended, the end."""
     from kitbench.envs.grasp import GraspHistory
+    from kitbench.evaluation.outcomes import watch_grasp
     from kitbench.geometry import quat_to_matrix
     from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH
 
@@ -43,7 +44,7 @@ def play(env, policy, seed: int) -> dict:
     for step in range(u.max_episode_steps):
         obs, _, terminated, truncated, info = env.step(policy.act(obs))
         was_held = history.held_at_end
-        history.update(u.robot.is_grasping(u.peg), u.robot.gripper_opening())
+        watch_grasp(env, history)
         peg = u.peg.pose
         if history.held_at_end and grasped_at is None:
             grasped_at = step
