@@ -28,7 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.errors import KitbenchError
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.open_loop import parse_seeds  # noqa: E402
+from kitbench.errors import KitbenchError  # noqa: E402
 
 TASK = "LiftPegUpright-v1"
 GRASP_READ = 3  # steps after the grasp began at which the hand's place along the peg is read
@@ -52,15 +57,16 @@ def play(env, policy, seed: int) -> dict:
         obs, _, terminated, truncated, info = env.step(policy.act(obs))
         was_held = history.held_at_end
         watch_grasp(env, history)
-        peg = u.peg.pose
-        peg_rotation, hand_rotation = quat_to_matrix(peg.q), quat_to_matrix(u.robot.tcp_pose().q)
+        peg, tcp = u.peg.pose, u.robot.tcp_pose()
+        peg_rotation, hand_rotation = quat_to_matrix(peg.q), quat_to_matrix(tcp.q)
+        axis_now = hand_rotation.T @ peg_rotation[:, 0]  # the peg's axis in the TCP's frame this step
         above = (float(peg.p[2]) - standing) * 1000
         if history.held_at_end and grasped_at is None:
             grasped_at = step
         if grasped_at is not None and along is None and step >= grasped_at + GRASP_READ - 1:
-            offset = peg_rotation.T @ (np.asarray(u.robot.tcp_pose().p) - np.asarray(peg.p))
+            offset = peg_rotation.T @ (np.asarray(tcp.p) - np.asarray(peg.p))
             along = abs(float(offset[0])) * 1000
-            axis_in_hand = hand_rotation.T @ peg_rotation[:, 0]
+            axis_in_hand = axis_now
         hand_tilt = None if axis_in_hand is None else math.degrees(tilt_from_vertical(hand_rotation @ axis_in_hand))
         if history.held_at_end and hand_tilt is not None and (upright is None or hand_tilt < upright["hand_deg"]):
             upright = {"step": step, "hand_deg": hand_tilt, "above_mm": above}
@@ -73,9 +79,7 @@ def play(env, policy, seed: int) -> dict:
                 "hand_deg": hand_tilt,
                 "in_hand_deg": None
                 if axis_in_hand is None
-                else math.degrees(
-                    math.acos(min(1.0, abs(float(axis_in_hand @ (hand_rotation.T @ peg_rotation[:, 0])))))
-                ),
+                else math.degrees(math.acos(min(1.0, abs(float(axis_in_hand @ axis_now))))),
             }
         if terminated or truncated:
             break
@@ -162,28 +166,16 @@ def print_rows(rows: list[dict]) -> None:
     )
 
 
-def _seeds(text: str) -> list[int]:
-    try:
-        if ":" in text:
-            start, stop = (int(s) for s in text.split(":"))
-            return list(range(start, stop))
-        return [int(s) for s in text.split(",")]
-    except ValueError:
-        raise KitbenchError(f"--seeds {text!r} must be START:STOP or comma-separated integers") from None
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", required=True, help="lerobot:<checkpoint> or expert")
-    parser.add_argument("--seeds", required=True, help="START:STOP or comma-separated seeds")
+    parser.add_argument("--seeds", required=True, help="A:B (B not included), a count N or S1,S2,...")
     parser.add_argument("--robot", help="for a policy without a checkpoint (default the task's first)")
     parser.add_argument("--policy-option", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--out", help="also write the rows to this JSON file")
     args = parser.parse_args(argv)
     try:
-        seeds = _seeds(args.seeds)
-        if not seeds:
-            raise KitbenchError(f"--seeds {args.seeds!r} names no seed")
+        seeds = list(parse_seeds(args.seeds))
         from kitbench.policies.lerobot_policy import parse_option
 
         rows, robot = measure(args.policy, seeds, args.robot, dict(parse_option(o) for o in args.policy_option))

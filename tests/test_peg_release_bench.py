@@ -44,4 +44,4 @@ def test_a_hand_opened_mid_swing_reads_as_let_go_while_the_peg_leans():
 def test_bad_seeds_are_one_line(capsys):
     assert main(["--policy", "expert", "--seeds", "a:b"]) == 2
     err = capsys.readouterr().err
-    assert "--seeds 'a:b' must be START:STOP or comma-separated integers" in err and err.count("\n") == 1
+    assert "--seeds 'a:b' must be a count N, a range A:B of seeds >= 0" in err and err.count("\n") == 1
