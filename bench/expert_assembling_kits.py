@@ -1,14 +1,19 @@
 """Benchmark the AssemblingKits-v1 expert: `python bench/expert_assembling_kits.py [--robot panda_wristcam|so101]
-[--seeds N] [--first S] [--workers K] [--control-mode M]`.
+[--seeds N] [--first S] [--workers K] [--control-mode M] [--expert-option KEY=VALUE ...]`.
 
-Runs seeds S..S+N-1 (default settings, `pd_joint_pos`, 200-step limit) and prints the success rate, the steps of
-successful episodes (median / p90 / max), a per-shape table, failures by category and episodes per second.
+Runs seeds S..S+N-1 (the expert's settings with any `--expert-option` replaced, `pd_joint_pos`, 200-step limit) and
+prints the success rate, the steps of successful episodes (median / p90 / max), a per-shape table, failures by
+category and episodes per second. The table's `one grip` is how often the shape sits in the hand at one yaw: the
+share of its lifted episodes whose yaw in the hand (the shape's less the hand's, folded by the shape's symmetry and
+by the hand's half turn) is within 5 degrees of the shape's commonest; a policy that reads the slot's yaw and its
+own can turn such a shape to its slot without reading the shape's yaw.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import math
 import multiprocessing as mp
 import time
 from dataclasses import dataclass
@@ -17,8 +22,9 @@ import gymnasium as gym
 import numpy as np
 
 import kitbench  # noqa: F401  (registers the tasks)
+from kitbench.geometry import planar_yaw, quat_to_matrix
 from kitbench.kits import SHAPE_NAMES
-from kitbench.planning.assembling_kits import AssemblingKitsPlanner
+from kitbench.planning.assembling_kits import AssemblingKitsPlanner, grip_period
 from kitbench.policies.joint_targets import joint_target_to_action
 
 TASK = "kitbench/AssemblingKits-v1"
@@ -31,6 +37,7 @@ class Episode:
     success: bool
     steps: int
     category: str  # "success" or why it failed
+    grip: tuple[float, float] | None = None  # the shape's yaw in the hand as the lift ends, folded (`grip_yaw`)
 
 
 def failure_category(planner: AssemblingKitsPlanner, info: dict) -> str:
@@ -44,18 +51,31 @@ def failure_category(planner: AssemblingKitsPlanner, info: dict) -> str:
     return f"timeout in {planner.phase}" if info["pos_diff_norm"] > 0.05 else "jammed at the slot"
 
 
-def run_seeds(args: tuple[list[int], str, str]) -> list[Episode]:
-    seeds, control_mode, robot = args
+def grip_yaw(env) -> tuple[float, float]:
+    """(the shape's yaw less the hand's, folded by `grip_period`; that period), degrees (0 and 0 for a disc or a
+    ring, which sit in the hand at every yaw alike)."""
+    u = env.unwrapped
+    shape_yaw = planar_yaw(quat_to_matrix(u.obj.pose.q))
+    hand_yaw = planar_yaw(quat_to_matrix(u.robot.tcp_pose().q))
+    period = math.degrees(grip_period(u.shape.symmetry))
+    return (float(math.degrees(shape_yaw - hand_yaw) % period) if period else 0.0), period
+
+
+def run_seeds(args: tuple[list[int], str, str, dict]) -> list[Episode]:
+    seeds, control_mode, robot, options = args
     env = gym.make(TASK, control_mode=control_mode, robot_uids=robot)
     episodes = []
     for seed in seeds:
         obs, info = env.reset(seed=seed)
-        planner = AssemblingKitsPlanner(env)
-        steps, terminated, truncated = 0, False, False
+        planner: AssemblingKitsPlanner = env.unwrapped.make_expert(options)
+        steps, terminated, truncated, grip = 0, False, False, None
         while not (terminated or truncated):
+            phase = planner.phase
             target = planner.act(obs)  # pd_joint_pos targets, expressed in the env's mode
             obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
             steps += 1
+            if grip is None and phase == "lift" and planner.phase != "lift":
+                grip = grip_yaw(env)
         success = bool(info["success"])
         episodes.append(
             Episode(
@@ -64,20 +84,40 @@ def run_seeds(args: tuple[list[int], str, str]) -> list[Episode]:
                 success,
                 steps,
                 "success" if success else failure_category(planner, info),
+                grip,
             )
         )
     env.close()
     return episodes
 
 
-def run(n_seeds: int, workers: int, control_mode: str, robot: str = "panda_wristcam", first: int = 0) -> list[Episode]:
+def run(
+    n_seeds: int,
+    workers: int,
+    control_mode: str,
+    robot: str = "panda_wristcam",
+    first: int = 0,
+    options: dict | None = None,
+) -> list[Episode]:
     seeds = list(range(first, first + n_seeds))
     if workers <= 1:
-        return run_seeds((seeds, control_mode, robot))
-    chunks = [(seeds[i::workers], control_mode, robot) for i in range(workers)]
+        return run_seeds((seeds, control_mode, robot, options or {}))
+    chunks = [(seeds[i::workers], control_mode, robot, options or {}) for i in range(workers)]
     with mp.get_context("spawn").Pool(workers) as pool:
         results = pool.map(run_seeds, chunks)
     return sorted((e for chunk in results for e in chunk), key=lambda e: e.seed)
+
+
+def one_grip(rows) -> tuple[int, int]:
+    """(k, n): of a shape's n lifted episodes, the k within 5 degrees of the commonest yaw in the hand."""
+    grips = [e.grip for e in rows if e.grip is not None]
+    if not grips or not grips[0][1]:
+        return len(grips), len(grips)
+    period = grips[0][1]
+    yaw = np.array([g for g, _ in grips])
+    apart = np.abs(yaw[:, None] - yaw[None, :]) % period
+    near = (np.minimum(apart, period - apart) <= 5.0).sum(axis=1)
+    return int(near.max()), len(grips)
 
 
 def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
@@ -90,7 +130,8 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
             f"steps over successes: median {np.median(steps):.0f}, p90 {np.percentile(steps, 90):.0f}, "
             f"max {steps.max()} (limit 200)"
         )
-    lines.append("shape                 episodes  success  median steps")
+    lines.append("shape                 episodes  success  median steps  one grip")
+    held = lifted = 0
     for shape_id in range(len(SHAPE_NAMES)):
         rows = [e for e in episodes if e.shape_id == shape_id]
         if not rows:
@@ -98,7 +139,13 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
         ok = [e.steps for e in rows if e.success]
         median = f"{np.median(ok):.0f}" if ok else "-"
         rate = 100.0 * len(ok) / len(rows)
-        lines.append(f"{shape_id:2d} {SHAPE_NAMES[shape_id]:<18} {len(rows):8d}  {rate:6.1f}%  {median:>12}")
+        held_k, lifted_n = one_grip(rows)
+        row = f"{shape_id:2d} {SHAPE_NAMES[shape_id]:<18} {len(rows):8d}  {rate:6.1f}%  {median:>12}"
+        lines.append(f"{row}  {held_k:4d}/{lifted_n}")
+        held, lifted = held + held_k, lifted + lifted_n
+    if lifted:
+        share = 100.0 * held / lifted
+        lines.append(f"one grip: {held}/{lifted} lifted shapes ({share:.1f}%) within 5 deg of their shape's commonest")
     failures = collections.Counter(e.category for e in episodes if not e.success)
     if failures:
         lines.append("failures: " + ", ".join(f"{k} {v}" for k, v in failures.most_common()))
@@ -114,9 +161,15 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=0, help="the first seed (default 0)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument("--control-mode", default="pd_joint_pos", help="pd_joint_pos (default) or pd_joint_delta_pos")
+    parser.add_argument(
+        "--expert-option", action="append", default=[], metavar="KEY=VALUE", help="an expert config field, repeatable"
+    )
     args = parser.parse_args()
+    from kitbench.policies.lerobot_policy import parse_option
+
+    options = dict(map(parse_option, args.expert_option))
     start = time.perf_counter()
-    episodes = run(args.seeds, args.workers, args.control_mode, args.robot, args.first)
+    episodes = run(args.seeds, args.workers, args.control_mode, args.robot, args.first, options)
     print(report(episodes, time.perf_counter() - start, args.control_mode))
 
 

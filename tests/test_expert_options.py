@@ -17,6 +17,7 @@ from kitbench.policies.expert import ExpertPolicy
 from kitbench.recording.config import load_recipe
 from kitbench.recording.convert import convert_config
 from kitbench.recording.recorder import RecordConfig, record
+from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH
 from tests.lerobot_cli import BIN, OFFLINE
 from tests.test_recording import _columns
 
@@ -118,9 +119,10 @@ def test_a_recipe_gives_options_as_a_table_or_as_command_line_pairs(tmp_path):
         load_recipe(recipe)
 
 
-def _held_at(robot: str, options: dict | None, seed: int) -> tuple[float, float, bool]:
+def _held_at(robot: str, options: dict | None, seed: int) -> tuple[float, float, bool, float]:
     """One LiftPegUpright episode of the expert: where along the peg's axis its TCP is as the hand closes (m, the
-    sign dropped), the TCP's height as the episode ends (it ends as the peg stands), and whether the peg stood up."""
+    sign dropped), the TCP's height as the peg first stands, whether it stood up, and the peg's centre above its
+    standing height as the swing ends (m)."""
     from kitbench.geometry import quat_to_matrix
 
     env = gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", control_mode="pd_joint_pos", robot_uids=robot)
@@ -129,19 +131,22 @@ def _held_at(robot: str, options: dict | None, seed: int) -> tuple[float, float,
         obs, info = env.reset(seed=seed)
         expert = ExpertPolicy(options)
         expert.reset(env, seed, obs, info)
-        along = None
-        success = False
-        for _ in range(env.unwrapped.max_episode_steps):
-            obs, _, terminated, truncated, info = env.step(expert.act(obs))
+        along = swing_end = tcp_z = None
+        for _ in range(u.max_episode_steps):
+            phase = expert.phase
+            obs, _, _, truncated, info = env.step(expert.act(obs))
             if along is None and expert.phase == "grasp":
                 peg = u.peg.pose
                 offset = quat_to_matrix(peg.q).T @ (u.robot.tcp_pose().p - peg.p)
                 along = abs(float(offset[0]))
-            success = success or bool(info["success"])
-            if terminated or truncated:
-                break
-        assert along is not None
-        return along, float(u.robot.tcp_pose().p[2]), success
+            if swing_end is None and phase == "swing" and expert.phase != "swing":
+                swing_end = float(u.peg.pose.p[2]) - PEG_HALF_LENGTH * u.peg_scale
+            if tcp_z is None and info["success"]:
+                tcp_z = float(u.robot.tcp_pose().p[2])
+            if truncated or expert.phase in ("release", "done"):
+                break  # not at `terminated`: a peg that ends the swing low succeeds before the swing ends
+        assert along is not None and swing_end is not None
+        return along, tcp_z or 0.0, tcp_z is not None, swing_end
     finally:
         env.close()
 
@@ -152,13 +157,13 @@ def test_a_grasp_spread_holds_each_peg_where_its_seed_draws_and_sets_it_down_by_
     seeds = range(4)
     fixed = [_held_at(robot, None, seed) for seed in seeds]
     spread_runs = [_held_at(robot, {"grasp_offset_spread": spread}, seed) for seed in seeds]
-    assert all(success for *_, success in fixed + spread_runs)
+    assert all(success for _, _, success, _ in fixed + spread_runs)
     # without the option every grasp is at the config's one offset; with it, one per episode
     assert max(a for a, *_ in fixed) - min(a for a, *_ in fixed) < 0.002
     along = [a for a, *_ in spread_runs]
     assert max(along) - min(along) > 0.01
     # the hand stands the peg up higher or lower by where it holds it: the set-down follows the grasp
-    heights = [h for _, h, _ in spread_runs]
+    heights = [h for _, h, _, _ in spread_runs]
     assert max(heights) - min(heights) > 0.005
     # the draw is the episode's: the same seed holds the peg at the same place
     assert _held_at(robot, {"grasp_offset_spread": spread}, 2)[0] == pytest.approx(along[2], abs=1e-6)
@@ -174,3 +179,34 @@ def test_a_negative_grasp_spread_is_one_line():
         env.close()
     assert "grasp_offset_spread must be >= 0 (0: no spread), got -0.1" in str(error.value)
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("robot", ["panda", "so101"])
+def test_a_set_down_spread_ends_each_swing_at_its_seeds_height_and_the_table_ends_the_descent(robot):
+    """`set_down_clearance_spread`: the swing leaves the upright peg 2-25 mm up, drawn per episode, and the hand
+    lowers it until it stands on the table."""
+    options = {"set_down_clearance": 0.0135, "set_down_clearance_spread": 0.0115}
+    runs = [_held_at(robot, options, seed) for seed in range(4)]
+    assert all(success for _, _, success, _ in runs)
+    heights = [h for *_, h in runs]
+    assert all(-0.002 < h < 0.029 for h in heights), heights
+    assert max(heights) - min(heights) > 0.005, heights
+    assert _held_at(robot, options, 2)[3] == pytest.approx(heights[2], abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"set_down_clearance_spread": -0.01}, "set_down_clearance_spread must be >= 0 (0: no spread), got -0.01"),
+        ({"set_down_clearance_spread": 0.01}, "set_down_clearance_spread=0.01 reaches below the table"),
+    ],
+)
+def test_a_set_down_spread_below_the_table_is_one_line(options, message):
+    env = gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", robot_uids="so101")
+    try:
+        env.reset(seed=0)
+        with pytest.raises(KitbenchError) as error:
+            env.unwrapped.make_expert(options)
+    finally:
+        env.close()
+    assert message in str(error.value) and "\n" not in str(error.value)

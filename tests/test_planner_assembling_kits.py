@@ -10,7 +10,7 @@ import pytest
 
 import kitbench  # noqa: F401
 from kitbench.geometry import planar_yaw, quat_to_matrix
-from kitbench.planning.assembling_kits import AssemblingKitsPlanner, signed_yaw_options
+from kitbench.planning.assembling_kits import AssemblingKitsPlanner, across_narrowest, signed_yaw_options
 from kitbench.tasks.assembling_kits import yaw_error
 
 # seed: shape — a disc lying on the table next to the board, a hexagon (2 pi / 6), a rectangle (pi), a kite
@@ -70,6 +70,59 @@ def test_yaw_options_are_the_goal_yaws_equivalent_under_symmetry(delta, symmetry
     options = signed_yaw_options(delta, symmetry)
     np.testing.assert_allclose(sorted(options), sorted(expected), atol=1e-12)
     assert all(abs(o) <= 2 * math.pi + 1e-9 for o in options)
+
+
+@pytest.mark.parametrize(
+    "angle,grasp_angle,symmetry,expected",
+    [
+        (90.0, 0.0, 90.0, True),  # a square: across either pair of sides
+        (45.0, 0.0, 90.0, False),  # ...not across its corners
+        (36.0, 0.0, 72.0, True),  # a pentagon: a turn by 72 degrees and the hand's half turn make 36
+        (18.0, 0.0, 72.0, False),
+        (179.0, 1.0, 360.0, True),  # no symmetry: closing along a direction or its opposite is one grasp
+        (30.0, 1.0, 360.0, False),
+        (30.0, 1.0, 0.0, True),  # a disc: every direction
+        (3.0, 0.0, 360.0, False),  # more than half a sampled direction (2.5 degrees) off
+    ],
+)
+def test_the_narrowest_grasp_is_recognised_up_to_the_shapes_symmetry(angle, grasp_angle, symmetry, expected):
+    assert across_narrowest(math.radians(angle), math.radians(grasp_angle), math.radians(symmetry)) is expected
+
+
+def _closes_across_narrowest(env, seed: int, prefer: bool) -> bool:
+    env.reset(seed=seed)
+    u = env.unwrapped
+    planner = u.make_expert({"prefer_narrowest": prefer})
+    start = planner._last()
+    turn, _ = planner._choose_grasp(start)
+    closing = planar_yaw(start.tcp[:3, :3]) + turn - math.pi / 2  # the fingers close across the hand's y
+    angle = closing - planar_yaw(quat_to_matrix(u.obj.pose.q))
+    return across_narrowest(angle, u.shape.grasp_angle, u.shape.symmetry)
+
+
+@pytest.mark.parametrize("seed", [1, 6, 17, 21])  # a hexagon, a kite, a pentagon, a square
+def test_prefer_narrowest_closes_across_the_shapes_narrowest_width(env, seed):
+    """`prefer_narrowest`: the shape sits in the hand at one yaw per shape; the shipped expert closes any way."""
+    assert not _closes_across_narrowest(env, seed, False)
+    assert _closes_across_narrowest(env, seed, True)
+
+
+@pytest.mark.parametrize("seed", [6, 17])
+def test_the_expert_closing_across_the_narrowest_width_inserts_the_shape(seed):
+    from kitbench.policies.expert import ExpertPolicy
+
+    env = gym.make("kitbench/AssemblingKits-v1", control_mode="pd_joint_pos")
+    try:
+        policy = ExpertPolicy({"prefer_narrowest": True})
+        obs, info = env.reset(seed=seed)
+        policy.reset(env, seed, obs, info)
+        for _ in range(200):
+            obs, _, terminated, truncated, info = env.step(policy.act(obs))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert info["success"]
 
 
 @pytest.mark.parametrize("seed", [24, 28, 6])
@@ -132,3 +185,30 @@ def test_a_flat_jaw_meets_a_face_across_a_rectangle_and_a_corner_of_a_triangle()
     assert up.behind_face == pytest.approx(0.044, abs=5e-4) and up.ahead_face < 0.002
     small = jaw_contacts(6, 0.7)[0]  # and at 0.7 scale, everything 0.7 as far
     assert small.behind_at == pytest.approx(-0.0175) and small.behind_face == pytest.approx(0.0168, abs=5e-4)
+
+
+# -- bench/expert_assembling_kits.py: how often a shape sits in the hand at one yaw ---------------------------------
+def test_the_expert_bench_reads_the_shapes_yaw_in_the_hand_as_the_narrowest_grasp_puts_it():
+    from bench.expert_assembling_kits import run_seeds
+    from kitbench.kits import shape_geometry
+
+    (episode,) = run_seeds(([6], "pd_joint_pos", "panda_wristcam", {"prefer_narrowest": True}))
+    assert episode.success and episode.grip is not None
+    grip, period = episode.grip
+    shape = shape_geometry(episode.shape_id)
+    # the fingers close across the narrowest width, the hand's y along it: the shape sits a quarter turn off it
+    expected = math.degrees(-shape.grasp_angle - math.pi / 2) % period
+    apart = abs(grip - expected) % period
+    assert min(apart, period - apart) < 4.0
+
+
+def test_one_grip_counts_the_episodes_near_the_commonest_yaw_in_the_hand_across_the_fold():
+    from bench.expert_assembling_kits import Episode, one_grip
+
+    def at(*grips: float, period: float = 90.0) -> list[Episode]:
+        return [Episode(0, 3, True, 50, "success", (g, period)) for g in grips]
+
+    assert one_grip(at(1.0, 88.0, 45.0)) == (2, 3)  # 1 and 88 are 3 degrees apart on a square's fold
+    assert one_grip(at(1.0, 20.0, 45.0)) == (1, 3)
+    assert one_grip(at(0.0, 0.0, period=0.0)) == (2, 2)  # a disc sits alike at every yaw
+    assert one_grip([Episode(0, 3, False, 200, "never grasped", None)]) == (0, 0)

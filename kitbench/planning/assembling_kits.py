@@ -157,6 +157,12 @@ class AssemblingKitsPlannerConfig:
     # Where set (m): the shape is lowered to this far above the board's top and aligned there again before it goes
     # in, for a hand whose lag changes as the arm folds down (the SO-101's drifted 1-2 mm over a 2 cm descent).
     pre_insert_height: float | None = None
+    # Whether the grasp closes across the shape's narrowest width (`ShapeGeometry.grasp_angle`, up to the shape's
+    # symmetry) wherever the fingers come down that way as clear as `clear_first`: the shape's yaw in the hand is then
+    # one value per shape in most episodes, so the turn to its slot is the slot's yaw less the hand's, which a policy
+    # reads from pixels and joints; closing any way, it has to read the shape's own yaw (docs/learnability.md, "One
+    # grip per shape").
+    prefer_narrowest: bool = False
 
 
 # The SO-101's (kitbench/robots/so101.py), for its kit at 0.7 scale (shapes 2.1 cm tall, standing 1.4 cm proud of
@@ -187,6 +193,24 @@ SO101_CONFIG = AssemblingKitsPlannerConfig(
     jaw_pads=((-0.026, 0.0, 0.0115), (0.0, 0.05, 0.011)),
 )
 ROBOT_CONFIGS = {"so101": SO101_CONFIG}
+
+
+def grip_period(symmetry: float) -> float:
+    """The turn (rad) after which a shape of this symmetry sits alike between two fingers: its symmetry combined
+    with the hand's half turn (closing along a direction or its opposite is one grasp); 0 for a disc or a ring."""
+    if symmetry <= 0:
+        return 0.0
+    return math.radians(math.gcd(round(math.degrees(symmetry) * 1000), 180_000) / 1000.0)
+
+
+def across_narrowest(angle: float, grasp_angle: float, symmetry: float) -> bool:
+    """Whether closing along `angle` (rad, shape frame) is closing along `grasp_angle` up to `grip_period`, to
+    within half a sampled direction."""
+    period = grip_period(symmetry)
+    if not period:
+        return True  # a disc or a ring: every direction is the narrowest
+    off = (angle - grasp_angle) % period
+    return min(off, period - off) <= math.pi / (2 * CLOSING_SAMPLES) + 1e-9
 
 
 def signed_yaw_options(delta: float, symmetry: float) -> list[float]:
@@ -358,6 +382,7 @@ class AssemblingKitsPlanner(PhasePlanner):
             if opening > self.cfg.max_opening:
                 continue
             closing = obj_yaw + angle
+            narrowest = self.cfg.prefer_narrowest and across_narrowest(angle, shape.grasp_angle, shape.symmetry)
             base = wrap_angle(closing + math.pi / 2 - hand_yaw)  # hand yaw whose fingers close along `closing`
             # clearances by the fixed jaw's side (None for hands whose pads do not depend on it), then rotation
             pick_clear: dict[bool | None, float] = {}
@@ -385,7 +410,13 @@ class AssemblingKitsPlanner(PhasePlanner):
                         face = round(
                             min(contact.ahead_face if ahead else contact.behind_face, self.cfg.min_jaw_face), 3
                         )
-                    key = (min(clear, self.cfg.clear_first), face, clear, -(abs(turn) + abs(rotation)) - 5.0 * opening)
+                    key = (
+                        min(clear, self.cfg.clear_first),
+                        narrowest,
+                        face,
+                        clear,
+                        -(abs(turn) + abs(rotation)) - 5.0 * opening,
+                    )
                     if best is None or key > best[0]:
                         best = (key, turn, rotation)
         if best is None:  # no direction fits the opening or joint 7: fall back on the narrowest, shortest way
@@ -537,4 +568,10 @@ class AssemblingKitsPlanner(PhasePlanner):
         return self._move(start, target, 0.0, self.grip, "insert", speed=self.cfg.insert_speed)
 
 
-__all__ = ["AssemblingKitsPlanner", "AssemblingKitsPlannerConfig", "signed_yaw_options"]
+__all__ = [
+    "AssemblingKitsPlanner",
+    "AssemblingKitsPlannerConfig",
+    "across_narrowest",
+    "grip_period",
+    "signed_yaw_options",
+]

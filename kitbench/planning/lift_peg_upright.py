@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
@@ -63,6 +64,9 @@ class PlannerConfig:
     final_x_backoff: float = 0.03  # how much nearer the base to retry a swing the IK cannot follow, m
     swing_lift: float = 0.01  # extra clearance of the peg's low end mid-swing, m
     set_down_clearance: float = 0.002  # peg bottom above the table at the end of the swing, m
+    # each episode's set_down_clearance is drawn uniformly within this of it, m: the set-down's length varies, so
+    # only the table ends it, as a learned swing that ends too high needs (docs/learnability.md)
+    set_down_clearance_spread: float = 0.0
     speed_factor: float = 1.0  # fraction of the Panda's joint velocity and acceleration limits plans may use
     close_steps: int = 1  # gripper closing before the grasp is checked (the fingers close in one step)
     settle_steps: int = 1  # hold at the end of the swing before measuring the peg
@@ -77,6 +81,12 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         check_spread("grasp_offset_spread", self.grasp_offset_spread)
+        check_spread("set_down_clearance_spread", self.set_down_clearance_spread)
+        if self.set_down_clearance - self.set_down_clearance_spread < 0.0:
+            raise KitbenchError(
+                f"expert option set_down_clearance_spread={self.set_down_clearance_spread!r} reaches below the table: "
+                f"it must be at most set_down_clearance ({self.set_down_clearance!r})"
+            )
 
 
 class LiftPegUprightPlanner(PhasePlanner):
@@ -94,6 +104,8 @@ class LiftPegUprightPlanner(PhasePlanner):
 
     def on_reset(self) -> None:
         self.grasp_offset = drawn_within(self.rng, self.cfg.grasp_offset, self.cfg.grasp_offset_spread)
+        c = self.cfg
+        self.set_down_clearance = drawn_within(self.rng, c.set_down_clearance, c.set_down_clearance_spread)
 
     # -- state ----------------------------------------------------------------------------------------------------
     def _peg_frame(self) -> np.ndarray:
@@ -218,7 +230,7 @@ class LiftPegUprightPlanner(PhasePlanner):
         offset = upright @ tcp_in_peg[:3, 3]
         base_x_of_end0 = self.ik.to_base(make_pose(np.eye(3), end0 + offset))[0, 3]
         end1 = end0 - forward * max(0.0, base_x_of_end0 - x_max)
-        end1[2] = c.set_down_clearance
+        end1[2] = self.set_down_clearance
 
         def pose_at(s: float) -> np.ndarray:
             angle = s * math.pi / 2
@@ -236,7 +248,7 @@ class LiftPegUprightPlanner(PhasePlanner):
         start = self._last()
         peg = self._object_pose()
         axis = peg[:3, 0] if peg[2, 0] >= 0 else -peg[:3, 0]
-        height_error = PEG_HALF_LENGTH + self.cfg.set_down_clearance - peg[2, 3]
+        height_error = PEG_HALF_LENGTH + self.set_down_clearance - peg[2, 3]
         tilt = tilt_from_vertical(axis)
         if abs(height_error) <= self.cfg.height_tolerance and tilt <= self.cfg.tilt_tolerance:
             return self._plan_set_down(start, peg[2, 3] - PEG_HALF_LENGTH)

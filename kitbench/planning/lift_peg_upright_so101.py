@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kitbench.errors import KitbenchError
 from kitbench.geometry import tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
@@ -52,6 +53,9 @@ class PlannerConfig:
     reach_step: float = 0.01  # how much further out to retry a swing the IK cannot follow, m
     swing_lift: float = 0.01  # extra clearance of the peg's low end mid-swing, m
     set_down_clearance: float = 0.002  # peg bottom above the table at the end of the swing, m
+    # each episode's set_down_clearance is drawn uniformly within this of it, m: the set-down's length varies, so
+    # only the table ends it, as a learned swing that ends too high needs (docs/learnability.md)
+    set_down_clearance_spread: float = 0.0
     speed_factor: float = 0.5  # fraction of the servos' no-load speed and acceleration plans may use
     # the jaw's command while open (-1 fully, 100 degrees; 1 closed): wide open, the jaw's heel reaches the table
     # beside a low grasp; at -0.2 (gripper.pos 60, 56 degrees) it clears the 2.5 cm peg by 2 cm at the pads
@@ -67,6 +71,12 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         check_spread("grasp_offset_spread", self.grasp_offset_spread)
+        check_spread("set_down_clearance_spread", self.set_down_clearance_spread)
+        if self.set_down_clearance - self.set_down_clearance_spread < 0.0:
+            raise KitbenchError(
+                f"expert option set_down_clearance_spread={self.set_down_clearance_spread!r} reaches below the table: "
+                f"it must be at most set_down_clearance ({self.set_down_clearance!r})"
+            )
 
 
 class SO101LiftPegUprightPlanner(PhasePlanner):
@@ -86,6 +96,8 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
         scale = self.env.peg_scale
         self.half_length, self.half_width = PEG_HALF_LENGTH * scale, PEG_HALF_WIDTH * scale
         self.grasp_offset = drawn_within(self.rng, self.cfg.grasp_offset, self.cfg.grasp_offset_spread)
+        c = self.cfg
+        self.set_down_clearance = drawn_within(self.rng, c.set_down_clearance, c.set_down_clearance_spread)
 
     # -- geometry -------------------------------------------------------------------------------------------------
     def _outward(self, peg: np.ndarray) -> np.ndarray:
@@ -197,7 +209,7 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
         peg_after = tcp @ np.linalg.inv(tcp_in_peg)
         axis = peg_after[:3, 0] if peg_after[2, 0] >= 0 else -peg_after[:3, 0]
         bottom = peg_after[2, 3] - self.half_length * axis[2]
-        tcp[2, 3] += self.cfg.set_down_clearance - bottom
+        tcp[2, 3] += self.set_down_clearance - bottom
         self.planned_tilt = tilt_from_vertical(axis)
         return tcp
 
@@ -251,7 +263,7 @@ class SO101LiftPegUprightPlanner(PhasePlanner):
         start = self._last()
         peg = self._object_pose()
         axis = peg[:3, 0] if peg[2, 0] >= 0 else -peg[:3, 0]
-        goal_height = self.half_length + self.cfg.set_down_clearance
+        goal_height = self.half_length + self.set_down_clearance
         height_error = goal_height - peg[2, 3]
         tilt = tilt_from_vertical(axis)
         if again or (abs(height_error) <= self.cfg.height_tolerance and tilt <= self.cfg.tilt_tolerance):
