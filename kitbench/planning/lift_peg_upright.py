@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
@@ -81,12 +80,8 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         check_spread("grasp_offset_spread", self.grasp_offset_spread)
-        check_spread("set_down_clearance_spread", self.set_down_clearance_spread)
-        if self.set_down_clearance - self.set_down_clearance_spread < 0.0:
-            raise KitbenchError(
-                f"expert option set_down_clearance_spread={self.set_down_clearance_spread!r} reaches below the table: "
-                f"it must be at most set_down_clearance ({self.set_down_clearance!r})"
-            )
+        clearance = ("set_down_clearance", self.set_down_clearance)
+        check_spread("set_down_clearance_spread", self.set_down_clearance_spread, clearance, "the table")
 
 
 class LiftPegUprightPlanner(PhasePlanner):

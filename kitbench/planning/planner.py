@@ -32,10 +32,15 @@ MEASURED_DELTA_TRACKING = 0.6
 EXPERT_STREAM = 0x6578_7074
 
 
-def check_spread(name: str, spread: float) -> None:
-    """An expert option that spreads a setting over episodes (`drawn_within`) is a width, 0 or more."""
+def check_spread(name: str, spread: float, base: tuple[str, float] | None = None, zero_is: str = "0") -> None:
+    """An expert option that spreads a setting over episodes (`drawn_within`) is a width, 0 or more; given `base`
+    (the setting's name and value), no draw may fall below 0, which `zero_is` names in the error."""
     if not spread >= 0.0:
         raise KitbenchError(f"expert option {name} must be >= 0 (0: no spread), got {spread!r}")
+    if base is not None and base[1] - spread < 0.0:
+        raise KitbenchError(
+            f"expert option {name}={spread!r} reaches below {zero_is}: it must be at most {base[0]} ({base[1]!r})"
+        )
 
 
 def drawn_within(rng: np.random.Generator, value: float, spread: float) -> float:
