@@ -31,9 +31,10 @@ figure grows with the demonstrations):
   whose yaw matters (not the disc or ring).
 - shape: the loose shape's position error (mm, median).
 - turn: the error of the turn still needed (degrees, median), the share within 4 degrees, and the median over the
-  frames where more than 4 degrees are still to turn (`turning`: before the expert has turned the shape).
+  frames where more than 4 degrees are still to turn (`turning`: before the expert has turned the shape), and over
+  those of them where the shape is up in the hand (`carried`: the turn the policy makes in the transport).
 - shape_yaw, grip: the loose shape's yaw error and the error of its yaw in the hand (degrees, median), each with the
-  share within 4 degrees.
+  share within 4 degrees; the yaw in the hand's also over the `carried` frames (the others have none in the hand).
 
 Encoders: `act` (ACT's backbone: ResNet-18 with frozen batch norm, its layer-4 map, then a 1x1 projection, as
 ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_stride_with_dilation` raises for a
@@ -81,6 +82,8 @@ TARGETS = {
     "grip": ("obj_yaw_sym.0", "obj_yaw_sym.1"),  # less the hand's yaw (HAND_YAW): `in_hand_yaw`
 }
 HAND_YAW = ("tcp_yaw.0", "tcp_yaw.1")
+SHAPE_Z = "obj_pose.z"
+LIFTED = 0.01  # m above where its episode's shape started: the shape is in the hand (`carried` figures)
 # the yaw targets and the symmetry each is folded by (None: the shape's own)
 YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": None}
 STATE = "observation.state"
@@ -111,6 +114,16 @@ class Recording:
     repo_id: str = f"kitbench/{TASK}"
     state: np.ndarray | None = None  # frames x the arm's state (joints, gripper): what --with-state adds
     kit: dict[int, int] = field(default_factory=dict)  # episode index -> its kit (the episode file's kit_episode)
+    lifted: np.ndarray | None = None  # frame -> the shape is up in the hand (LIFTED above its episode's start)
+    shape_of: dict[int, int] = field(default_factory=dict)  # episode index -> its shape's id
+
+
+def lifted_frames(z: np.ndarray, episode_of: np.ndarray) -> np.ndarray:
+    """Per frame whether the shape is more than LIFTED above its height in its episode's first frame."""
+    start = {}
+    for frame in np.argsort(episode_of, kind="stable"):
+        start.setdefault(int(episode_of[frame]), float(z[frame]))
+    return z > np.array([start[int(e)] for e in episode_of]) + LIFTED
 
 
 def in_hand_yaw(shape_yaw_sym: np.ndarray, hand_yaw: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -155,7 +168,7 @@ def read_recording(root: Path) -> Recording:
     arm = column_array(table.column(STATE))[order].astype(np.float32)
     episode_of = column_array(table.column("episode_index"))[order].astype(np.int64)
     kits = _load(None, ROBOT_VARIANTS.get(recording.robot or "", KitVariant()).scale)
-    slots, target_slot, empty, symmetry, kit_of = {}, {}, {}, {}, {}
+    slots, target_slot, empty, symmetry, kit_of, shape_of = {}, {}, {}, {}, {}, {}
     for line in read_episode_file(root):
         i = int(line.episode_index)
         kit_of[i] = int(line.config["kit_episode"])
@@ -164,12 +177,14 @@ def read_recording(root: Path) -> Recording:
         target_slot[i] = int(kit.obj_to_place)
         empty[i] = len(kit.slots) - len(kit.obj_in_place)
         symmetry[i] = float(shape_geometry(kit.target_slot.shape_id, kits.board.scale).symmetry)
+        shape_of[i] = int(kit.target_slot.shape_id)
     targets = state[:, columns]
     # each frame's symmetry order (0 for a disc or ring), computed once an episode
     episodes, frame_episode = np.unique(episode_of, return_inverse=True)
     fold = np.array([2 * math.pi / symmetry[int(e)] if symmetry[int(e)] > 0 else 0.0 for e in episodes])
     hand = state[:, [names.index(n) for n in HAND_YAW]]
     targets[:, COLUMNS["grip"]] = in_hand_yaw(targets[:, COLUMNS["grip"]], hand, fold[frame_episode])
+    lifted = lifted_frames(state[:, names.index(SHAPE_Z)], episode_of)
     return Recording(
         root=root,
         cameras=cameras,
@@ -185,6 +200,8 @@ def read_recording(root: Path) -> Recording:
         repo_id=recording.repo_id or f"kitbench/{TASK}",
         state=arm,
         kit=kit_of,
+        lifted=lifted,
+        shape_of=shape_of,
     )
 
 
@@ -265,6 +282,7 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
     right: list[bool] = []
     errors: dict[str, list[float]] = {name: [] for name in YAW_TARGETS}
     turning: list[float] = []
+    carried: dict[str, list[float]] = {"turn": [], "grip": []}  # in the hand, the turn still to make
     for row, frame in enumerate(frames):
         episode = int(recording.episode_of[frame])
         nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, goal], axis=1)))
@@ -276,6 +294,9 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
                 errors[name].append(_folded_yaw_error(predicted[row, cols], true[row, cols], folded_by or symmetry))
             if _folded_yaw_error(true[row, turn_cols], np.array([1.0, 0.0]), symmetry) > YAW_TOLERANCE:
                 turning.append(errors["turn"][-1])
+                if recording.lifted is not None and recording.lifted[frame]:
+                    carried["turn"].append(errors["turn"][-1])
+                    carried["grip"].append(errors["grip"][-1])
     yaws = {name: np.array(v) if v else np.array([np.nan]) for name, v in errors.items()}
     still = np.array(turning) if turning else np.array([np.nan])
     figures = {
@@ -284,6 +305,8 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
         "shape_mm": float(np.median(shape_err)),
         "turning_deg": float(np.median(still)),
     }
+    for name, values in carried.items():
+        figures[f"carried_{name}_deg"] = float(np.median(values)) if values else math.nan
     for name, values in yaws.items():
         figures[f"{name}_deg"] = float(np.median(values))
         figures[f"{name}_within_4deg"] = float(np.mean(values <= YAW_TOLERANCE))
@@ -324,11 +347,23 @@ def split(
 
 
 def baselines(recording: Recording, train: np.ndarray, held: np.ndarray) -> dict:
-    """What predicting the training frames' mean gets, and what picking an empty pocket at random gets."""
-    mean = np.broadcast_to(recording.targets[train].mean(axis=0), (len(held), recording.targets.shape[1]))
-    figures = score(recording, held, np.array(mean))
+    """What predicting the training frames' mean gets, what predicting each shape's own mean over its carried
+    training frames gets (the yaw in the hand a policy knows from the shape alone), and what picking an empty
+    pocket at random gets."""
+    mean = recording.targets[train].mean(axis=0)
+    figures = score(recording, held, np.array(np.broadcast_to(mean, (len(held), len(mean)))))
+    shape_of_frame = np.array([recording.shape_of.get(int(e), -1) for e in recording.episode_of])
+    carried = train[recording.lifted[train]] if recording.lifted is not None else train[:0]
+    per_shape = np.array(
+        [
+            recording.targets[carried[shape_of_frame[carried] == shape_of_frame[f]]].mean(axis=0)
+            if np.any(shape_of_frame[carried] == shape_of_frame[f])
+            else mean
+            for f in held
+        ]
+    )
     chance = float(np.mean([1.0 / recording.empty[int(recording.episode_of[f])] for f in held]))
-    return {"mean": figures, "chance_right_slot": chance}
+    return {"mean": figures, "shape_mean": score(recording, held, per_shape), "chance_right_slot": chance}
 
 
 def train_and_score(
@@ -468,9 +503,10 @@ def describe(m: dict, targets: tuple[str, ...]) -> str:
         "yaw": f"yaw {m['yaw_deg']:5.1f} deg ({m['yaw_within_4deg']:4.0%} within 4)",
         "shape": f"shape {m['shape_mm']:5.1f} mm",
         "turn": f"turn {m['turn_deg']:5.1f} deg ({m['turn_within_4deg']:4.0%} within 4; "
-        f"{m['turning_deg']:5.1f} turning)",
+        f"{m['turning_deg']:5.1f} turning, {m['carried_turn_deg']:5.1f} carried)",
         "shape_yaw": f"shape yaw {m['shape_yaw_deg']:5.1f} deg ({m['shape_yaw_within_4deg']:4.0%} within 4)",
-        "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4)",
+        "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4; "
+        f"{m['carried_grip_deg']:5.1f} carried)",
     }
     return ", ".join(parts[t] for t in TARGETS if t in targets)
 
@@ -574,7 +610,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{base['mean']['goal_mm'][0]:.0f} mm, right slot {base['mean']['right_slot']:.0%}, shape "
             f"{base['mean']['shape_mm']:.0f} mm, turn {base['mean']['turn_deg']:.0f} deg "
             f"({base['mean']['turning_deg']:.0f} turning), shape yaw {base['mean']['shape_yaw_deg']:.0f} deg, "
-            f"yaw in the hand {base['mean']['grip_deg']:.0f} deg; an empty pocket at random: "
+            f"yaw in the hand {base['mean']['grip_deg']:.0f} deg ({base['mean']['carried_grip_deg']:.0f} carried; "
+            f"each shape's mean: {base['shape_mean']['carried_grip_deg']:.0f}); an empty pocket at random: "
             f"right slot {base['chance_right_slot']:.0%}",
             flush=True,
         )

@@ -81,6 +81,51 @@ def test_the_turning_figure_counts_only_frames_still_to_turn():
     assert figures["turn_deg"] == pytest.approx(5.5, abs=1e-3)
 
 
+def test_the_carried_figures_count_only_frames_with_the_shape_up_in_the_hand_and_still_to_turn():
+    from bench.perception_probe import lifted_frames
+
+    square = math.pi / 2
+    recording = _recording(square)
+    targets = np.repeat(recording.targets, 2, axis=0)  # four frames: on the table twice, then up in the hand twice
+    targets[:, 6:8] = [_folded(30.0, square), _folded(30.0, square), _folded(30.0, square), _folded(2.0, square)]
+    lifted = lifted_frames(np.array([0.02, 0.021, 0.05, 0.06]), np.zeros(4, dtype=int))
+    assert lifted.tolist() == [False, False, True, True]
+    recording = dataclasses.replace(recording, targets=targets, episode_of=np.zeros(4, dtype=int), lifted=lifted)
+    predicted = targets.astype(np.float64)
+    predicted[:, 6:8] = [_folded(40.0, square), _folded(40.0, square), _folded(33.0, square), _folded(0.0, square)]
+    predicted[:, 10:12] = [_folded(0.0, square), _folded(0.0, square), _folded(6.0, square), _folded(9.0, square)]
+    figures = score(recording, np.arange(4), predicted)
+    assert figures["turning_deg"] == pytest.approx(10.0, abs=1e-3)  # the three frames still to turn
+    # only the third is up in the hand with a turn still to make (the fourth is turned)
+    assert figures["carried_turn_deg"] == pytest.approx(3.0, abs=1e-3)
+    assert figures["carried_grip_deg"] == pytest.approx(6.0, abs=1e-3)
+
+
+def test_each_shapes_carried_mean_is_what_knowing_the_shape_gives_the_yaw_in_the_hand():
+    from bench.perception_probe import baselines
+
+    square = math.pi / 2
+    base = _recording(square)
+    # two episodes of one shape, held at 20 degrees in the hand, each one frame on the table and two up in it
+    targets = np.repeat(base.targets, 3, axis=0)
+    targets[:, 6:8] = _folded(30.0, square)
+    targets[:, 10:12] = [_folded(d, square) for d in (0.0, 20.0, 20.0, 0.0, 20.0, 20.0)]
+    recording = dataclasses.replace(
+        base,
+        targets=targets,
+        episode_of=np.array([0, 0, 0, 1, 1, 1]),
+        lifted=np.array([False, True, True, False, True, True]),
+        slots={0: base.slots[0], 1: base.slots[0]},
+        target_slot={0: 2, 1: 2},
+        empty={0: 3, 1: 3},
+        symmetry={0: square, 1: square},
+        shape_of={0: 4, 1: 4},
+    )
+    figures = baselines(recording, train=np.array([0, 1, 2]), held=np.array([3, 4, 5]))
+    assert figures["shape_mean"]["carried_grip_deg"] == pytest.approx(0.0, abs=1e-3)
+    assert figures["mean"]["carried_grip_deg"] > 5.0  # the mean over every frame, the one on the table too
+
+
 def test_the_shape_yaw_and_its_yaw_in_the_hand_are_folded_by_its_symmetry():
     square = math.pi / 2
     recording = _recording(square)
