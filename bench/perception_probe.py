@@ -34,7 +34,7 @@ figure grows with the demonstrations):
   frames where more than 4 degrees are still to turn (`turning`: before the expert has turned the shape), and over
   those of them where the shape is up in the hand (`carried`: the turn the policy makes in the transport).
 - shape_yaw, grip: the loose shape's yaw error and the error of its yaw in the hand (degrees, median), each with the
-  share within 4 degrees; the yaw in the hand's also over the `carried` frames (the others have none in the hand).
+  share within 4 degrees; the yaw in the hand's also over the `carried` frames (up in the hand, still to turn).
 
 Encoders: `act` (ACT's backbone: ResNet-18 with frozen batch norm, its layer-4 map, then a 1x1 projection, as
 ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_stride_with_dilation` raises for a
