@@ -120,10 +120,8 @@ class Recording:
 
 def lifted_frames(z: np.ndarray, episode_of: np.ndarray) -> np.ndarray:
     """Per frame whether the shape is more than LIFTED above its height in its episode's first frame."""
-    start = {}
-    for frame in np.argsort(episode_of, kind="stable"):
-        start.setdefault(int(episode_of[frame]), float(z[frame]))
-    return z > np.array([start[int(e)] for e in episode_of]) + LIFTED
+    _, first, episode = np.unique(episode_of, return_index=True, return_inverse=True)
+    return z > z[first][episode] + LIFTED
 
 
 def in_hand_yaw(shape_yaw_sym: np.ndarray, hand_yaw: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -354,14 +352,9 @@ def baselines(recording: Recording, train: np.ndarray, held: np.ndarray) -> dict
     figures = score(recording, held, np.array(np.broadcast_to(mean, (len(held), len(mean)))))
     shape_of_frame = np.array([recording.shape_of.get(int(e), -1) for e in recording.episode_of])
     carried = train[recording.lifted[train]] if recording.lifted is not None else train[:0]
-    per_shape = np.array(
-        [
-            recording.targets[carried[shape_of_frame[carried] == shape_of_frame[f]]].mean(axis=0)
-            if np.any(shape_of_frame[carried] == shape_of_frame[f])
-            else mean
-            for f in held
-        ]
-    )
+    shapes = np.unique(shape_of_frame[carried])
+    means = {s: recording.targets[carried[shape_of_frame[carried] == s]].mean(axis=0) for s in shapes}
+    per_shape = np.array([means.get(shape_of_frame[f], mean) for f in held])
     chance = float(np.mean([1.0 / recording.empty[int(recording.episode_of[f])] for f in held]))
     return {"mean": figures, "shape_mean": score(recording, held, per_shape), "chance_right_slot": chance}
 
