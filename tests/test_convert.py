@@ -156,6 +156,36 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
     assert not (out / "meta/kitbench_episodes.jsonl").exists()
 
 
+def test_a_recording_of_successes_only_converts_into_a_dataset_that_passes_the_training_checks(tmp_path):
+    """An `only_success` source skips the seeds its expert failed (AssemblingKits' seed 3 with its recipes' noise);
+    the conversion holds the same seeds, gap included, and says it holds successes only, so that the checks
+    lerobot-train runs through the plugin accept it (they refused it, seeds 0..3 asked against 0..4 held)."""
+    from kitbench.integrity import check_dataset
+    from kitbench.metadata import RecordingInfo
+    from kitbench.recording.source import SourceRecording
+
+    source = tmp_path / "src"
+    phases = ("approach", "descend", "grasp", "lift", "transport", "align")
+    config = RecordConfig.of(
+        "AssemblingKits-v1",
+        4,
+        source,
+        control_mode="pd_ee_delta_pose",
+        action_noise=0.25,
+        noise_phases=phases,
+        settle_steps=10,
+        only_success=True,
+        mcap=False,
+    )
+    record(config, progress=False)
+    assert SourceRecording(source).seeds == (0, 1, 2, 4)
+    out = tmp_path / "converted"
+    summary = record(convert_config(source, out, mcap=False), progress=False)
+    assert summary.stored == 4 and summary.rejected == 0
+    check_dataset(out)
+    assert SourceRecording(out).seeds == (0, 1, 2, 4) and RecordingInfo.read(out).only_success
+
+
 def test_path_gap_ignores_timing_and_measures_a_detour():
     from kitbench.recording.convert import path_gap
 

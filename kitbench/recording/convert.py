@@ -145,9 +145,9 @@ class SourceReplay:
 
 
 def convert_config(source_root: Path, out: Path, **settings):
-    """The `RecordConfig` of converting the recording at `source_root` into `out`: the source's task, robot, seeds,
-    reward and settling, with `settings` (obs_mode, control_mode, workers, ...; None: the source's or the
-    default) on top."""
+    """The `RecordConfig` of converting the recording at `source_root` into `out`: the source's task, robot, seeds
+    (and whether they hold successes only), reward and settling, with `settings` (obs_mode, control_mode, workers,
+    ...; None: the source's or the default) on top."""
     from kitbench.integrity import check_dataset
 
     if not Path(source_root).is_dir():
@@ -173,6 +173,8 @@ def convert_config(source_root: Path, out: Path, **settings):
         "episodes": len(source.seeds),
         "out": Path(out),
         "seed": min(source.seeds),
+        # a source of successes only skips the seeds its expert failed: said so, its seeds' gaps pass the checks
+        "only_success": info.only_success,
         "policy": info.policy,
         "policy_options": tuple((info.expert_options or {}).items()),
         "source": Path(source_root),
