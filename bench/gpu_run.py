@@ -17,7 +17,8 @@ is how the script is tested before a GPU is lent.
   config's own step count would take at that rate. `--pipelines after` runs kitbench's reader only; `--extra` (with
   `--tag` naming it) passes more lerobot-train arguments, so that a lever (`--batch_size=256`, `--policy.use_amp=true`)
   is measured beside the config as shipped.
-- `learn` (a config trained as shipped and scored): the recipe of `--config` recorded with `--demos` demonstrations,
+- `learn` (a config trained as shipped and scored): the recipe of `--config` recorded with `--demos` demonstrations
+  (or `--data`, a recording made beforehand and carried to the machine: it must suit the config's task and cameras),
   `lerobot-train --config_path=<config>` with `--steps` (default the config's), then `kitbench eval` on the task's
   standard suite on the GPU (`--eval-episodes` of it).
 - `score` (how fast the image suite is scored): `kitbench eval --device cuda` of `--checkpoint` (default the loader
@@ -211,16 +212,39 @@ def plan_loader(args, out: Path, logs: Path, results: dict) -> None:
             print(f"{key}: {json.dumps(results[key])}", flush=True)
 
 
+def recording_for(config: str, data: Path) -> int:
+    """A recording carried to the machine: its episode count, once it is known to suit
+    `config` (the same task, every camera the config reads at the config's size); else exit 2 naming the mismatch."""
+    meta = json.loads((data / "meta" / "kitbench_recording.json").read_text())
+    info = json.loads((data / "meta" / "info.json").read_text())
+    raw = json.loads((ROOT / "policies" / f"{config}.json").read_text())
+    if meta["task"] != raw["env"]["task"]:
+        sys.exit(f"gpu_run: --data {data} records {meta['task']}; {config} trains on {raw['env']['task']}")
+    for name, feature in raw["policy"].get("input_features", {}).items():
+        if feature["type"] == "VISUAL":
+            found = info["features"].get(name, {}).get("shape")
+            want = feature["shape"]
+            if found is None or sorted(found) != sorted(want):  # the dataset is HWC, the config CHW
+                sys.exit(f"gpu_run: --data {data} has {name} {found}; {config} reads it at {want}")
+    return info["total_episodes"]
+
+
 def plan_learn(args, out: Path, logs: Path, results: dict) -> None:
     config = args.config
     demos = 2 if args.tiny else args.demos
     steps = 2 if args.tiny else args.steps
     recipe = recipe_of(config)
     data = out / "data" / f"{recipe.stem}-{demos}"
+    if args.data is not None:  # recorded beforehand (bench/gpu_pack.py carries it): the machine only trains
+        data = args.data
+        demos = recording_for(config, data)
     key = f"{config}/d{demos}/s{steps or 'shipped'}" + (f"/{args.tag}" if args.tag else "")
     entry = results.setdefault(key, {})
     if "train" not in entry:
-        entry["record_seconds"] = record(recipe, demos, data, None, args.workers, logs)
+        if args.data is None:
+            entry["record_seconds"] = record(recipe, demos, data, None, args.workers, logs)
+        else:
+            entry["data"] = json.loads((data / "meta" / "kitbench_recording.json").read_text())
         entry["train"] = train(config, data, out / "train" / key.replace("/", "_"), args, "kitbench", logs, steps)
         save(out, "learn", results)
     if "eval" not in entry:
@@ -303,6 +327,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", default="act_assembling_kits_rgb", help="learn: the config trained and scored")
     parser.add_argument("--demos", type=int, default=50, help="demonstrations recorded per recipe")
     parser.add_argument("--steps", type=int, help="training steps (loader: 600; learn: the config's)")
+    parser.add_argument("--data", type=Path, help="learn: a kitbench recording to train on instead of recording one")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) - 2), help="recording workers")
     parser.add_argument("--eval-episodes", type=int, default=200, help="learn, score: the suite's first N seeds")
     parser.add_argument("--eval-batch", type=int, default=10, help="learn: kitbench eval --batch-size")
@@ -331,6 +356,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"no config policies/{config}.json")
     if min(args.demos, args.workers, args.eval_episodes, args.eval_batch, args.steps or 1) < 1:
         parser.error("--demos, --steps, --workers, --eval-episodes and --eval-batch must be >= 1")
+    if args.data is not None and not (args.data / "meta" / "kitbench_recording.json").is_file():
+        parser.error(f"--data: {str(args.data)!r} is not a kitbench recording (no meta/kitbench_recording.json)")
     out = Path(args.out)
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)

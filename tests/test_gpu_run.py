@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 from datetime import datetime
@@ -135,7 +136,7 @@ def test_the_learn_script_runs_both_trainings_each_with_its_variant_as_one_argum
     assert set(runs) == {"ak", "diffusion"}
     ak, diffusion = runs["ak"], runs["diffusion"]
     assert ak[ak.index("--config") + 1] == "act_assembling_kits_rgb_cpu"
-    assert "--extra=--policy.device=cuda --batch_size=64 --num_workers=6" in ak and ak[-2:] == ["--tag", "gpu"]
+    assert "--extra=--policy.device=cuda --batch_size=256 --num_workers=8" in ak and ak[-2:] == ["--tag", "gpu"]
     assert diffusion[diffusion.index("--config") + 1] == "diffusion_lift_peg_upright_rgb"
     # the recordings split the 14 workers between them
     assert int(ak[ak.index("--workers") + 1]) + int(diffusion[diffusion.index("--workers") + 1]) == 14
@@ -145,4 +146,123 @@ def test_the_learn_script_runs_both_trainings_each_with_its_variant_as_one_argum
 def test_the_learn_script_names_its_commands_on_a_bad_one(tmp_path):
     done = subprocess.run(["bash", str(LEARN_SCRIPT), "train", str(tmp_path)], capture_output=True, text=True)
     assert done.returncode == 2
-    assert done.stderr.strip() == "gpu_learn.sh: unknown command 'train' (choose run or collect)"
+    assert done.stderr.strip() == "gpu_learn.sh: unknown command 'train' (choose run, collect or receive)"
+
+
+def _recording(root: Path, task: str, image_shape: list[int], files: dict[str, int]) -> Path:
+    """A stand-in recording: the metadata `--data` and the packing read, and files of the given sizes."""
+    (root / "meta").mkdir(parents=True)
+    (root / "meta" / "kitbench_recording.json").write_text(json.dumps({"task": task}))
+    info = {"total_episodes": 7, "features": {"observation.images.base_camera": {"shape": image_shape}}}
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    for rel, size in files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(os.urandom(size))
+    return root
+
+
+def test_packed_recordings_come_back_whole_from_their_folders_and_a_lost_file_is_named(tmp_path):
+    from bench.gpu_pack import check, pack
+
+    kib = 1024
+    files = {"videos/a.mp4": 600 * kib, "data/a.parquet": 300 * kib}
+    ak = _recording(tmp_path / "ak", "AssemblingKits-v1", [64, 64, 3], files)
+    lpu = _recording(tmp_path / "lpu", "LiftPegUpright-v1", [128, 128, 3], {"videos/b.mp4": 500 * kib})
+    folders = pack({"ak": ak, "diffusion": lpu}, tmp_path / "carry", mib=1.0)
+    sizes = [sum(p.stat().st_size for p in f.rglob("*") if p.is_file() and p.name != "gpu_pack.json") for f in folders]
+    assert len(folders) == 2 and max(sizes) <= 2**20  # 1.4 MiB of files, no folder over its 1 MiB
+    merged = tmp_path / "merged"
+    merged.mkdir()
+    for folder in folders:
+        subprocess.run(["cp", "-r", f"{folder}/.", str(merged)], check=True)
+    assert check(merged) == []
+    assert (merged / "ak" / "videos" / "a.mp4").read_bytes() == (ak / "videos" / "a.mp4").read_bytes()
+    assert (merged / "diffusion" / "meta" / "kitbench_recording.json").is_file()
+    (merged / "ak" / "data" / "a.parquet").unlink()
+    assert check(merged) == ["ak/data/a.parquet is missing"]
+
+
+def test_a_packed_file_larger_than_a_folder_is_refused(tmp_path):
+    from bench.gpu_pack import main as pack_main
+
+    ak = _recording(tmp_path / "ak", "AssemblingKits-v1", [64, 64, 3], {"videos/a.mp4": 2 * 2**20})
+    with pytest.raises(SystemExit, match=r"ak/videos/a\.mp4 is larger than --mib 1"):
+        pack_main([f"ak={ak}", "--out", str(tmp_path / "carry"), "--mib", "1"])
+    assert not (tmp_path / "carry").exists()
+    assert pack_main([f"ak={tmp_path}", "--out", str(tmp_path / "carry")]) == 2
+
+
+@pytest.mark.parametrize(
+    ("task", "shape", "needle"),
+    [
+        ("LiftPegUpright-v1", [64, 64, 3], "records LiftPegUpright-v1; act_assembling_kits_rgb_cpu trains on"),
+        ("AssemblingKits-v1", [128, 128, 3], "has observation.images.base_camera [128, 128, 3]; act_assembling_kits"),
+    ],
+)
+def test_a_carried_recording_that_does_not_suit_the_config_is_refused_before_training(tmp_path, task, shape, needle):
+    data = _recording(tmp_path / "rec", task, shape, {})
+    argv = [
+        "--plan",
+        "learn",
+        "--config",
+        "act_assembling_kits_rgb_cpu",
+        "--data",
+        str(data),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    with pytest.raises(SystemExit, match=re.escape(needle)):
+        main(argv)
+    assert not (tmp_path / "o" / "learn.json").exists()
+
+
+def test_the_learn_script_receives_packed_folders_and_trains_on_them_once_they_are_whole(tmp_path):
+    """Each command's packed folder is copied off at once (the next command's carry removes it); the run then
+    trains on the recordings with --data, after the manifest finds every file."""
+    from bench.gpu_pack import pack
+
+    ak = _recording(tmp_path / "ak", "AssemblingKits-v1", [64, 64, 3], {"videos/a.mp4": 600 * 1024})
+    lpu = _recording(tmp_path / "lpu", "LiftPegUpright-v1", [128, 128, 3], {"videos/b.mp4": 500 * 1024})
+    folders = pack({"ak": ak, "diffusion": lpu}, tmp_path / "carry", mib=1.0)
+    kb = tmp_path / "kb"
+    for folder in folders:  # one command each: only that folder came
+        only = tmp_path / f"sent_{folder.name}"
+        only.mkdir()
+        folder.rename(only / folder.name)
+        env = {**os.environ, "PACKED": str(only)}
+        done = subprocess.run(["bash", str(LEARN_SCRIPT), "receive", str(kb)], env=env, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+    calls = tmp_path / "calls.jsonl"
+    fake = tmp_path / "python"
+    fake.write_text(
+        f"#!{sys.executable}\nimport json, subprocess, sys\n"
+        f"open({str(calls)!r}, 'a').write(json.dumps(sys.argv[1:]) + '\\n')\n"
+        # the manifest check runs for real; the trainings are only recorded
+        f"real = 'gpu_pack' in sys.argv[1]\n"
+        f"sys.exit(subprocess.run([{sys.executable!r}, *sys.argv[1:]]).returncode if real else 0)\n"
+    )
+    fake.chmod(0o755)
+    env = {**os.environ, "PY": str(fake)}
+    env.pop("TINY", None)
+    done = subprocess.run(["bash", str(LEARN_SCRIPT), "run", str(kb)], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    argvs = [json.loads(line) for line in calls.read_text().splitlines()]
+    assert argvs[0][-2:] == ["--check", str(kb / "data")]
+    runs = {a[a.index("--out") + 1].rsplit("/", 1)[1]: a for a in argvs[1:]}
+    assert runs["ak"][runs["ak"].index("--data") + 1] == str(kb / "data" / "ak")
+    assert runs["diffusion"][runs["diffusion"].index("--data") + 1] == str(kb / "data" / "diffusion")
+    # a file lost on the way stops the run before any training
+    (kb / "data" / "ak" / "videos" / "a.mp4").unlink()
+    calls.unlink()
+    done = subprocess.run(["bash", str(LEARN_SCRIPT), "run", str(kb)], env=env, capture_output=True, text=True)
+    assert "ak/videos/a.mp4 is missing" in (kb / "run.log").read_text()
+    assert [json.loads(line)[0] for line in calls.read_text().splitlines()] == ["bench/gpu_pack.py"]
+
+
+def test_receiving_with_no_packed_folder_is_one_line(tmp_path):
+    env = {**os.environ, "PACKED": str(tmp_path / "nothing")}
+    done = subprocess.run(
+        ["bash", str(LEARN_SCRIPT), "receive", str(tmp_path / "kb")], env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip() == "gpu_learn.sh: no packed folder (.gpu/data*) came with this command"
