@@ -2,7 +2,8 @@
 
     python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
-        [--targets goal,yaw,shape,turn,shape_yaw,grip] [--with-state] [--hold-out episodes|kits] [--train-episodes N]
+        [--targets goal,yaw,shape,turn,shape_yaw,grip[,hand]] [--with-state] [--hold-out episodes|kits]
+        [--train-episodes N]
         [--save-policy DIR --policy-config policies/act_assembling_kits_rgb_cpu.json]
 
 An image policy that fails to carry the shape to its slot either cannot see where the slot is or does not learn to
@@ -35,6 +36,9 @@ figure grows with the demonstrations):
   those of them where the shape is up in the hand (`carried`: the turn the policy makes in the transport).
 - shape_yaw, grip: the loose shape's yaw error and the error of its yaw in the hand (degrees, median), each with the
   share within 4 degrees; the yaw in the hand's also over the `carried` frames (up in the hand, still to turn).
+- hand (trained only when `--targets` names it): the error of the hand's yaw with the shape seated, the slot's yaw
+  less the yaw in the hand (folded likewise), what an absolute action (`pd_ee_pose`) asks for where a delta one
+  asks for the turn; with the share within 4 degrees, and over the `carried` frames.
 
 Encoders: `act` (ACT's backbone: ResNet-18 with frozen batch norm, its layer-4 map, then a 1x1 projection, as
 ACT's tokens are made; a map a side 1/32 of the image's: ACT's `replace_final_stride_with_dilation` raises for a
@@ -80,12 +84,15 @@ TARGETS = {
     "turn": ("obj_to_goal_yaw.0", "obj_to_goal_yaw.1"),
     "shape_yaw": ("obj_yaw_sym.0", "obj_yaw_sym.1"),
     "grip": ("obj_yaw_sym.0", "obj_yaw_sym.1"),  # less the hand's yaw (HAND_YAW): `in_hand_yaw`
+    "hand": ("goal_yaw_sym.0", "goal_yaw_sym.1"),  # less the yaw in the hand: `hand_over_slot`
 }
+# trained unless --targets names others: `hand` came later, and training it beside the rest moves their figures
+DEFAULT_TARGETS = ("goal", "yaw", "shape", "turn", "shape_yaw", "grip")
 HAND_YAW = ("tcp_yaw.0", "tcp_yaw.1")
 SHAPE_Z = "obj_pose.z"
 LIFTED = 0.01  # m above where its episode's shape started: the shape is in the hand (`carried` figures)
 # the yaw targets and the symmetry each is folded by (None: the shape's own)
-YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": None}
+YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": None, "hand": None}
 STATE = "observation.state"
 COLUMNS = {name: slice(2 * i, 2 * i + 2) for i, name in enumerate(TARGETS)}  # each target's columns of `targets`
 HELD_OUT = 0.1  # the share of the recording's episodes, its last ones, scored and never trained on
@@ -105,7 +112,7 @@ class Recording:
     image_shape: tuple[int, int, int]  # C, H, W
     camera_size: str
     camera_view: str | None
-    targets: np.ndarray  # frames x 12: goal x y, then cos sin or x y of each of TARGETS in its order
+    targets: np.ndarray  # frames x 14: goal x y, then cos sin or x y of each of TARGETS in its order
     episode_of: np.ndarray  # frame -> episode index
     slots: dict[int, np.ndarray]  # episode index -> its kit's slot positions (5 x 2)
     target_slot: dict[int, int]  # episode index -> the index of the slot its shape goes into
@@ -129,6 +136,17 @@ def in_hand_yaw(shape_yaw_sym: np.ndarray, hand_yaw: np.ndarray, order: np.ndarr
     its symmetry, from its world yaw already so folded ([cos, sin] of order x yaw) and the hand's ([cos, sin]).
     [1, 0] where the order is 0 (a disc or ring, which any yaw fits)."""
     angle = np.arctan2(shape_yaw_sym[:, 1], shape_yaw_sym[:, 0]) - order * np.arctan2(hand_yaw[:, 1], hand_yaw[:, 0])
+    folded = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
+    folded[order == 0] = [1.0, 0.0]
+    return folded
+
+
+def hand_over_slot(slot_yaw_sym: np.ndarray, in_hand: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """[cos, sin] of `order` x the hand's yaw with the shape seated, per frame: the slot's yaw less the shape's yaw in
+    the hand, both given folded by the shape's symmetry. What an absolute action (`pd_ee_pose`) asks of the hand,
+    where a delta one asks for the turn still to make (the same less the hand's yaw now). [1, 0] where the order
+    is 0."""
+    angle = np.arctan2(slot_yaw_sym[:, 1], slot_yaw_sym[:, 0]) - np.arctan2(in_hand[:, 1], in_hand[:, 0])
     folded = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
     folded[order == 0] = [1.0, 0.0]
     return folded
@@ -182,6 +200,9 @@ def read_recording(root: Path) -> Recording:
     fold = np.array([2 * math.pi / symmetry[int(e)] if symmetry[int(e)] > 0 else 0.0 for e in episodes])
     hand = state[:, [names.index(n) for n in HAND_YAW]]
     targets[:, COLUMNS["grip"]] = in_hand_yaw(targets[:, COLUMNS["grip"]], hand, fold[frame_episode])
+    targets[:, COLUMNS["hand"]] = hand_over_slot(
+        targets[:, COLUMNS["yaw"]], targets[:, COLUMNS["grip"]], fold[frame_episode]
+    )
     lifted = lifted_frames(state[:, names.index(SHAPE_Z)], episode_of)
     return Recording(
         root=root,
@@ -272,7 +293,7 @@ def _folded_yaw_error(pred: np.ndarray, true: np.ndarray, symmetry: float) -> fl
 
 
 def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> dict:
-    """The held-out figures of predictions (frames x 12, in the targets' units) of `frames`."""
+    """The held-out figures of predictions (frames x 14, in the targets' units) of `frames`."""
     true = recording.targets[frames]
     goal, shape, turn_cols = COLUMNS["goal"], COLUMNS["shape"], COLUMNS["turn"]
     goal_err = np.linalg.norm(predicted[:, goal] - true[:, goal], axis=1) * 1000
@@ -280,7 +301,7 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
     right: list[bool] = []
     errors: dict[str, list[float]] = {name: [] for name in YAW_TARGETS}
     turning: list[float] = []
-    carried: dict[str, list[float]] = {"turn": [], "grip": []}  # in the hand, the turn still to make
+    carried: dict[str, list[float]] = {"turn": [], "grip": [], "hand": []}  # in the hand, the turn still to make
     for row, frame in enumerate(frames):
         episode = int(recording.episode_of[frame])
         nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, goal], axis=1)))
@@ -295,6 +316,7 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
                 if recording.lifted is not None and recording.lifted[frame]:
                     carried["turn"].append(errors["turn"][-1])
                     carried["grip"].append(errors["grip"][-1])
+                    carried["hand"].append(errors["hand"][-1])
     yaws = {name: np.array(v) if v else np.array([np.nan]) for name, v in errors.items()}
     still = np.array(turning) if turning else np.array([np.nan])
     figures = {
@@ -371,7 +393,7 @@ def train_and_score(
     train: np.ndarray,
     held: np.ndarray,
     seed: int = 1000,
-    targets: tuple[str, ...] = tuple(TARGETS),
+    targets: tuple[str, ...] = DEFAULT_TARGETS,
     with_state: bool = False,
     seen: np.ndarray | None = None,
 ) -> tuple[dict, object]:
@@ -500,6 +522,8 @@ def describe(m: dict, targets: tuple[str, ...]) -> str:
         "shape_yaw": f"shape yaw {m['shape_yaw_deg']:5.1f} deg ({m['shape_yaw_within_4deg']:4.0%} within 4)",
         "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4; "
         f"{m['carried_grip_deg']:5.1f} carried)",
+        "hand": f"hand over the slot {m['hand_deg']:5.1f} deg ({m['hand_within_4deg']:4.0%} within 4; "
+        f"{m['carried_hand_deg']:5.1f} carried)",
     }
     return ", ".join(parts[t] for t in TARGETS if t in targets)
 
@@ -528,7 +552,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-frames", type=int, default=1000)
     parser.add_argument("--out", help="also write the figures to this JSON file")
     parser.add_argument(
-        "--targets", default=",".join(TARGETS), help=f"what the encoder is trained to read, of {', '.join(TARGETS)}"
+        "--targets",
+        default=",".join(DEFAULT_TARGETS),
+        help=f"what the encoder is trained to read, of {', '.join(TARGETS)}",
     )
     parser.add_argument(
         "--with-state", action="store_true", help="the arm's state (joints, gripper) beside the images, at the head"

@@ -21,8 +21,8 @@ def _recording(symmetry: float) -> Recording:
     slots = np.array([[0.0, 0.05 * i] for i in range(5)])
     goal, yaw = slots[2], 0.0
     k = 2 * math.pi / symmetry if symmetry > 0 else 0.0
-    # no turn left; the shape at yaw 0, in the hand at yaw 0
-    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0]
+    # no turn left; the shape at yaw 0, in the hand at yaw 0, the hand over the slot at yaw 0
+    row = [*goal, math.cos(k * yaw), math.sin(k * yaw), 0.1, -0.1, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0]
     return Recording(
         root=Path("."),
         cameras=("observation.images.base_camera",),
@@ -53,8 +53,8 @@ def test_the_slot_figures_measure_what_they_name():
     # 2 cm off towards the next slot is still nearest the right one; 3 cm off is nearer the next
     near = np.array(
         [
-            [0.0, 0.12, *_folded(90.0, square), 0.1, -0.1, *_folded(3.0, square), *_folded(0, square), 1, 0],
-            [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08, *_folded(-10.0, square), *_folded(0, square), 1, 0],
+            [0.0, 0.12, *_folded(90.0, square), 0.1, -0.1, *_folded(3.0, square), *_folded(0, square), 1, 0, 1, 0],
+            [0.0, 0.13, *_folded(45.0, square), 0.1, -0.08, *_folded(-10.0, square), *_folded(0, square), 1, 0, 1, 0],
         ]
     )
     figures = score(recording, frames, near)
@@ -165,6 +165,37 @@ def test_the_yaw_in_the_hand_is_the_shapes_less_the_hands_folded_by_its_symmetry
     assert got[0] == pytest.approx(_folded(in_hand_deg, symmetry), abs=1e-6)
     # a disc or ring: any yaw fits, the target is constant
     assert in_hand_yaw(got, np.array([[0.0, 1.0]]), np.array([0.0]))[0] == pytest.approx([1.0, 0.0])
+
+
+@pytest.mark.parametrize(
+    ("symmetry", "slot_deg", "in_hand_deg", "hand_deg"),
+    [
+        (math.pi / 2, 30.0, 10.0, 20.0),  # a square held 10 degrees round sits in a 30-degree slot from 20
+        (math.pi / 2, 40.0, -40.0, -10.0),  # 80 is a quarter turn less 10: the same fit for a square
+        (2 * math.pi, 170.0, -20.0, -170.0),  # no symmetry: 190 is -170
+        (math.pi, 10.0, 100.0, 90.0),  # -90 and 90 are the same hand for a rectangle
+    ],
+)
+def test_the_hand_over_the_slot_is_the_slots_yaw_less_the_yaw_in_the_hand(symmetry, slot_deg, in_hand_deg, hand_deg):
+    from bench.perception_probe import hand_over_slot
+
+    order = np.array([2 * math.pi / symmetry])
+    got = hand_over_slot(np.array([_folded(slot_deg, symmetry)]), np.array([_folded(in_hand_deg, symmetry)]), order)
+    assert got[0] == pytest.approx(_folded(hand_deg, symmetry), abs=1e-6)
+    assert hand_over_slot(got, got, np.array([0.0]))[0] == pytest.approx([1.0, 0.0])  # a disc: any yaw fits
+
+
+def test_the_hand_over_the_slot_is_scored_over_the_carried_frames_too():
+    square = math.pi / 2
+    recording = _recording(square)
+    targets = recording.targets.copy()
+    targets[:, 6:8] = _folded(30.0, square)  # both frames still to turn
+    recording = dataclasses.replace(recording, targets=targets, lifted=np.array([False, True]))
+    predicted = targets.astype(np.float64)
+    predicted[:, 12:14] = [_folded(2.0, square), _folded(7.0, square)]
+    figures = score(recording, np.array([0, 1]), predicted)
+    assert figures["hand_deg"] == pytest.approx(4.5, abs=1e-3) and figures["hand_within_4deg"] == 0.5
+    assert figures["carried_hand_deg"] == pytest.approx(7.0, abs=1e-3)  # the frame up in the hand
 
 
 def test_a_shape_any_yaw_fits_has_no_yaw_figure():
