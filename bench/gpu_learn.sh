@@ -60,6 +60,7 @@ learn() {  # learn NAME CONFIG DEMOS STEPS WORKERS EXTRA
   echo "== $1 ended rc=$? $(date +%T)"; tail -1 "$dir/$1.log"
 }
 echo "== start $(date +%T)"
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
 if [ -f "$dir/data/gpu_pack.json" ]; then $PY bench/gpu_pack.py --check "$dir/data" || exit 1; fi
 learn ak "$AK" "$AK_DEMOS" "$AK_STEPS" "$AK_W" "$AK_EXTRA" & ak=$!
 learn diffusion "$DF" "$DF_DEMOS" "$DF_STEPS" "$DF_W" "$DF_EXTRA" & df=$!
