@@ -5,9 +5,9 @@
 One command carries at most 64 MiB with the working tree (`../shared/gpu/README.md`), and a recording of 800
 AssemblingKits demonstrations is larger than that. Each recording's files are hard-linked into `.gpu/data1`,
 `.gpu/data2`, ... (largest first, into the first folder with room) under the name given, so that copying every
-folder into one place on the machine (`cp -r .gpu/data1/. .gpu/data2/. DEST/`, as `bench/gpu_learn.sh run` does)
-gives back each recording whole: `DEST/ak`, `DEST/diffusion`. `--check DIR` verifies such a merge against the manifest
-the packing wrote (every file, its size). Exit status 2 for a bad argument.
+folder into one place on the machine (`bench/gpu_learn.sh receive DIR`, in the command that carried it, copies it
+into DIR/data) gives back each recording whole: `DIR/data/ak`, `DIR/data/diffusion`. `--check DIR` verifies such a
+merge against the manifest the packing wrote (every file, its size). Exit status 2 for a bad argument.
 """
 
 from __future__ import annotations

@@ -131,14 +131,23 @@ def lifted_frames(z: np.ndarray, episode_of: np.ndarray) -> np.ndarray:
     return z > z[first][episode] + LIFTED
 
 
+def _angle(cos_sin: np.ndarray) -> np.ndarray:
+    return np.arctan2(cos_sin[:, 1], cos_sin[:, 0])
+
+
+def _folded(angle: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """[cos, sin] of an angle already folded by the symmetry's order; [1, 0] where the order is 0 (a disc or ring,
+    which any yaw fits)."""
+    folded = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
+    folded[order == 0] = [1.0, 0.0]
+    return folded
+
+
 def in_hand_yaw(shape_yaw_sym: np.ndarray, hand_yaw: np.ndarray, order: np.ndarray) -> np.ndarray:
     """[cos, sin] of `order` x (the shape's yaw less the hand's), per frame: the shape's yaw in the hand folded by
     its symmetry, from its world yaw already so folded ([cos, sin] of order x yaw) and the hand's ([cos, sin]).
     [1, 0] where the order is 0 (a disc or ring, which any yaw fits)."""
-    angle = np.arctan2(shape_yaw_sym[:, 1], shape_yaw_sym[:, 0]) - order * np.arctan2(hand_yaw[:, 1], hand_yaw[:, 0])
-    folded = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
-    folded[order == 0] = [1.0, 0.0]
-    return folded
+    return _folded(_angle(shape_yaw_sym) - order * _angle(hand_yaw), order)
 
 
 def hand_over_slot(slot_yaw_sym: np.ndarray, in_hand: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -146,10 +155,7 @@ def hand_over_slot(slot_yaw_sym: np.ndarray, in_hand: np.ndarray, order: np.ndar
     the hand, both given folded by the shape's symmetry. What an absolute action (`pd_ee_pose`) asks of the hand,
     where a delta one asks for the turn still to make (the same less the hand's yaw now). [1, 0] where the order
     is 0."""
-    angle = np.arctan2(slot_yaw_sym[:, 1], slot_yaw_sym[:, 0]) - np.arctan2(in_hand[:, 1], in_hand[:, 0])
-    folded = np.stack([np.cos(angle), np.sin(angle)], axis=1).astype(np.float32)
-    folded[order == 0] = [1.0, 0.0]
-    return folded
+    return _folded(_angle(slot_yaw_sym) - _angle(in_hand), order)
 
 
 def read_recording(root: Path) -> Recording:
