@@ -174,6 +174,14 @@ class RecordingInfo:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}, indent=2) + "\n")
 
+    def holding(self, seeds: list[int]) -> RecordingInfo:
+        """These settings for a recording whose episodes are of `seeds`, in order: the list kept where they are not
+        the ones the settings imply (consecutive from `seed`, or the list already there), as after a seed whose
+        simulation failed or a conversion's episode that diverged from its source."""
+        if list(seeds) == (self.seeds or list(range(self.seed, self.seed + len(seeds)))):
+            return self
+        return dataclasses.replace(self, seeds=list(seeds))
+
     def validate(self) -> None:
         """Each setting has its type (a file edited by hand may not): a one-line `KitbenchError` naming it."""
         for name, kinds in _SETTING_TYPES.items():

@@ -156,6 +156,40 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
     assert not (out / "meta/kitbench_episodes.jsonl").exists()
 
 
+def freeze_episode(root: Path, index: int) -> None:
+    """Make episode `index`'s executed actions all its first one (the arm holds still where its expert moved), as
+    a source whose actions were damaged would hold them: its replay leaves the peg where it lay."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    data = next((root / "data").rglob("*.parquet"))
+    table = pq.read_table(data)
+    episode = table.column("episode_index").to_numpy()
+    executed = np.stack(table.column("executed_action").to_numpy(zero_copy_only=False))
+    executed[episode == index] = executed[episode == index][0]
+    column = table.schema.get_field_index("executed_action")
+    field = table.schema.field(column)
+    pq.write_table(table.set_column(column, field, pa.array(list(executed), type=field.type)), data)
+
+
+def test_a_diverged_episode_between_stored_ones_leaves_a_dataset_that_passes_the_training_checks(tmp_path):
+    """A source of consecutive seeds whose middle episode diverges: the conversion stores seeds 0 and 2, lists
+    them in its settings, and the checks lerobot-train runs through the plugin accept it (they refused it, seeds
+    0..1 said against 0, 2 held)."""
+    from kitbench.integrity import check_dataset
+    from kitbench.metadata import RecordingInfo
+    from kitbench.recording.source import SourceRecording
+
+    source = _source(tmp_path / "src", "pd_joint_pos", episodes=3, mcap=False)
+    freeze_episode(source, 1)
+    assert RecordingInfo.read(source).seeds is None  # consecutive: the settings imply them
+    out = tmp_path / "deltas"
+    summary = record(convert_config(source, out, control_mode="pd_joint_delta_pos", mcap=False), progress=False)
+    assert summary.stored == 2 and summary.rejected == 1
+    check_dataset(out)
+    assert SourceRecording(out).seeds == (0, 2) and RecordingInfo.read(out).seeds == [0, 2]
+
+
 def test_a_recording_of_successes_only_converts_into_a_dataset_that_passes_the_training_checks(tmp_path):
     """An `only_success` source skips the seeds its expert failed (AssemblingKits' seed 3 with its recipes' noise);
     the conversion holds the same seeds, gap included, and says it holds successes only, so that the checks

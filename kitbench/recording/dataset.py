@@ -201,8 +201,9 @@ class DatasetWriter:
         self.replace = False  # later sessions extend what this commit publishes
         faults.point("commit.finalized")
         session = self.session_root
-        write_episodes(session, read_episode_file(session) + self._pending)
-        self.info.write(session)
+        episodes = read_episode_file(session) + self._pending
+        write_episodes(session, episodes)
+        self.info.holding([e.seed for e in episodes]).write(session)
         faults.point("commit.metadata")
         write_card(session)
         fsync_new(session)  # durable before it is published: the journal forgets these episodes next

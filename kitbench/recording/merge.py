@@ -169,7 +169,7 @@ def merge(
     _check_out(out, shards, overwrite)
     first = shards[0].info
     repo_id = repo_id or first.repo_id or f"kitbench/{first.task}"
-    info = dataclasses.replace(first, repo_id=repo_id)
+    info = dataclasses.replace(first, repo_id=repo_id, seeds=None)  # the merged seeds are listed once known
     quiet_video_logs()
     staging = out.with_name(out.name + MERGING_SUFFIX)
     if staging.exists():
@@ -197,7 +197,7 @@ def merge(
         if len(without_logs) == len(shards):  # recorded without logs (--no-mcap): nothing was lost
             without_logs = {}
         write_episodes(staging, episodes)
-        info.write(staging)
+        info.holding([e.seed for e in episodes]).write(staging)
         write_card(staging)
         retired = out.with_name(out.name + ".retired")
         if out.exists():
