@@ -125,6 +125,44 @@ def test_the_expert_closing_across_the_narrowest_width_inserts_the_shape(seed):
     assert info["success"]
 
 
+@pytest.mark.parametrize("seed", [10, 24])  # an asymmetric shape 96 degrees off its slot, a rectangle 71
+def test_turn_over_slot_carries_the_shape_unturned_and_turns_it_over_its_slot(seed):
+    """`turn_over_slot`: through the transport the hand keeps its yaw until the shape is over its slot, then turns
+    there, in place, by the whole turn; the shape goes in. The shipped expert turns on the way."""
+    from kitbench.policies.expert import ExpertPolicy
+
+    def transport(options: dict) -> tuple[list[tuple[float, float]], bool]:
+        env = gym.make("kitbench/AssemblingKits-v1", control_mode="pd_joint_pos")
+        try:
+            policy = ExpertPolicy(options)
+            obs, info = env.reset(seed=seed)
+            policy.reset(env, seed, obs, info)
+            u = env.unwrapped
+            goal = np.asarray(u.goal_pos[:2], dtype=float)
+            path = []  # (hand's yaw, shape's distance from the slot) each transport step
+            for _ in range(200):
+                obs, _, terminated, truncated, info = env.step(policy.act(obs))
+                if policy.planner.phase == "transport":
+                    tcp = policy.planner._tcp()
+                    path.append((planar_yaw(tcp[:3, :3]), float(np.linalg.norm(u.obj.pose.p[:2] - goal))))
+                if terminated or truncated:
+                    break
+            return path, bool(info["success"])
+        finally:
+            env.close()
+
+    path, success = transport({"turn_over_slot": True})
+    assert success
+    yaws = np.unwrap([y for y, _ in path])
+    far = [i for i, (_, d) in enumerate(path) if d > 0.02]  # on the way, before the shape is over its slot
+    assert far and np.max(np.abs(yaws[far] - yaws[0])) < math.radians(3)
+    assert abs(yaws[-1] - yaws[0]) > math.radians(20)  # then the whole turn, over the slot
+    shipped, success = transport({})
+    turned = np.unwrap([y for y, _ in shipped])
+    far = [i for i, (_, d) in enumerate(shipped) if d > 0.02]
+    assert success and np.max(np.abs(turned[far] - turned[0])) > math.radians(10)
+
+
 @pytest.mark.parametrize("seed", [24, 28, 6])
 def test_chosen_turn_reaches_an_equivalent_goal_yaw_within_joint7_limits(env, seed):
     env.reset(seed=seed)

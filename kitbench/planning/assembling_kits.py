@@ -163,6 +163,11 @@ class AssemblingKitsPlannerConfig:
     # reads from pixels and joints; closing any way, it has to read the shape's own yaw (docs/learnability.md, "One
     # grip per shape").
     prefer_narrowest: bool = False
+    # Whether the carry goes over the slot unturned and the shape is turned there, in place, at `turn_speed` (a
+    # fraction of the joint limits): the turn is then made where the cameras see the held shape beside its slot, one
+    # relation in the picture rather than two yaws read apart (docs/learnability.md, "Turning the shape over its slot").
+    turn_over_slot: bool = False
+    turn_speed: float = 0.5
 
 
 # The SO-101's (kitbench/robots/so101.py), for its kit at 0.7 scale (shapes 2.1 cm tall, standing 1.4 cm proud of
@@ -535,7 +540,12 @@ class AssemblingKitsPlanner(PhasePlanner):
         rotation = (fits or options)[0]
         carry_bottom = self.env.episodes.board.top + self.cfg.carry_clearance
         target = self._goal_tcp(obj, tcp, rotation, carry_bottom)
-        steps = self._move(start, target, rotation, self.grip, "transport")
+        if not self.cfg.turn_over_slot:
+            steps = self._move(start, target, rotation, self.grip, "transport")
+            return steps + hold(steps[-1], self.cfg.settle_steps)
+        over = self._move(start, self._goal_tcp(obj, tcp, 0.0, carry_bottom), 0.0, self.grip, "transport")
+        turned = self._move(over[-1], target, rotation, self.grip, "transport", speed=self.cfg.turn_speed)
+        steps = over + turned
         return steps + hold(steps[-1], self.cfg.settle_steps)
 
     def _plan_align(self) -> list[Step]:
