@@ -33,7 +33,8 @@ figure grows with the demonstrations):
 - shape: the loose shape's position error (mm, median).
 - turn: the error of the turn still needed (degrees, median), the share within 4 degrees, and the median over the
   frames where more than 4 degrees are still to turn (`turning`: before the expert has turned the shape), and over
-  those of them where the shape is up in the hand (`carried`: the turn the policy makes in the transport).
+  those of them where the shape is up in the hand (`carried`: the turn the policy makes in the transport), and of
+  those where it is within 2 cm of its slot (`over the slot`: where an expert with `turn_over_slot` makes the turn).
 - shape_yaw, grip: the loose shape's yaw error and the error of its yaw in the hand (degrees, median), each with the
   share within 4 degrees; the yaw in the hand's also over the `carried` frames (up in the hand, still to turn).
 - hand (trained only when `--targets` names it): the error of the hand's yaw with the shape seated, the slot's yaw
@@ -91,6 +92,7 @@ DEFAULT_TARGETS = ("goal", "yaw", "shape", "turn", "shape_yaw", "grip")
 HAND_YAW = ("tcp_yaw.0", "tcp_yaw.1")
 SHAPE_Z = "obj_pose.z"
 LIFTED = 0.01  # m above where its episode's shape started: the shape is in the hand (`carried` figures)
+OVER_SLOT = 0.02  # m from its slot, horizontally: a carried shape is over it (`over the slot` figure)
 # the yaw targets and the symmetry each is folded by (None: the shape's own)
 YAW_TARGETS = {"yaw": None, "turn": None, "shape_yaw": None, "grip": None, "hand": None}
 STATE = "observation.state"
@@ -308,6 +310,8 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
     errors: dict[str, list[float]] = {name: [] for name in YAW_TARGETS}
     turning: list[float] = []
     carried: dict[str, list[float]] = {"turn": [], "grip": [], "hand": []}  # in the hand, the turn still to make
+    over_slot: list[float] = []  # the turn still to make, carried and over the slot
+    apart = np.linalg.norm(true[:, shape] - true[:, goal], axis=1)
     for row, frame in enumerate(frames):
         episode = int(recording.episode_of[frame])
         nearest = int(np.argmin(np.linalg.norm(recording.slots[episode] - predicted[row, goal], axis=1)))
@@ -323,6 +327,8 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
                     carried["turn"].append(errors["turn"][-1])
                     carried["grip"].append(errors["grip"][-1])
                     carried["hand"].append(errors["hand"][-1])
+                    if apart[row] < OVER_SLOT:
+                        over_slot.append(errors["turn"][-1])
     yaws = {name: np.array(v) if v else np.array([np.nan]) for name, v in errors.items()}
     still = np.array(turning) if turning else np.array([np.nan])
     figures = {
@@ -333,6 +339,8 @@ def score(recording: Recording, frames: np.ndarray, predicted: np.ndarray) -> di
     }
     for name, values in carried.items():
         figures[f"carried_{name}_deg"] = float(np.median(values)) if values else math.nan
+    figures["over_slot_turn_deg"] = float(np.median(over_slot)) if over_slot else math.nan
+    figures["over_slot_frames"] = len(over_slot)
     for name, values in yaws.items():
         figures[f"{name}_deg"] = float(np.median(values))
         figures[f"{name}_within_4deg"] = float(np.mean(values <= YAW_TOLERANCE))
@@ -524,7 +532,8 @@ def describe(m: dict, targets: tuple[str, ...]) -> str:
         "yaw": f"yaw {m['yaw_deg']:5.1f} deg ({m['yaw_within_4deg']:4.0%} within 4)",
         "shape": f"shape {m['shape_mm']:5.1f} mm",
         "turn": f"turn {m['turn_deg']:5.1f} deg ({m['turn_within_4deg']:4.0%} within 4; "
-        f"{m['turning_deg']:5.1f} turning, {m['carried_turn_deg']:5.1f} carried)",
+        f"{m['turning_deg']:5.1f} turning, {m['carried_turn_deg']:5.1f} carried, {m['over_slot_turn_deg']:5.1f} over "
+        f"the slot of {m['over_slot_frames']} frames)",
         "shape_yaw": f"shape yaw {m['shape_yaw_deg']:5.1f} deg ({m['shape_yaw_within_4deg']:4.0%} within 4)",
         "grip": f"yaw in the hand {m['grip_deg']:5.1f} deg ({m['grip_within_4deg']:4.0%} within 4; "
         f"{m['carried_grip_deg']:5.1f} carried)",
@@ -634,7 +643,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{args.hold_out}); mean predictor: slot "
             f"{base['mean']['goal_mm'][0]:.0f} mm, right slot {base['mean']['right_slot']:.0%}, shape "
             f"{base['mean']['shape_mm']:.0f} mm, turn {base['mean']['turn_deg']:.0f} deg "
-            f"({base['mean']['turning_deg']:.0f} turning), shape yaw {base['mean']['shape_yaw_deg']:.0f} deg, "
+            f"({base['mean']['turning_deg']:.0f} turning, {base['mean']['over_slot_turn_deg']:.0f} over the slot), "
+            f"shape yaw {base['mean']['shape_yaw_deg']:.0f} deg, "
             f"yaw in the hand {base['mean']['grip_deg']:.0f} deg ({base['mean']['carried_grip_deg']:.0f} carried; "
             f"each shape's mean: {base['shape_mean']['carried_grip_deg']:.0f}); an empty pocket at random: "
             f"right slot {base['chance_right_slot']:.0%}",

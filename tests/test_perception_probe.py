@@ -101,6 +101,23 @@ def test_the_carried_figures_count_only_frames_with_the_shape_up_in_the_hand_and
     assert figures["carried_grip_deg"] == pytest.approx(6.0, abs=1e-3)
 
 
+def test_the_over_the_slot_figure_counts_only_carried_frames_within_2_cm_of_the_slot_still_to_turn():
+    square = math.pi / 2
+    recording = _recording(square)
+    targets = np.repeat(recording.targets, 2, axis=0)  # four frames, all up in the hand
+    targets[:, 6:8] = [_folded(30.0, square), _folded(30.0, square), _folded(30.0, square), _folded(2.0, square)]
+    # the shape 22 cm from its slot, then 1.5 cm, 2.5 cm, and 1 cm (turned there)
+    targets[:, 4:6] = targets[:, 0:2] + np.array([[0.1, -0.2], [0.015, 0.0], [0.0, 0.025], [0.01, 0.0]])
+    lifted = np.ones(4, dtype=bool)
+    recording = dataclasses.replace(recording, targets=targets, episode_of=np.zeros(4, dtype=int), lifted=lifted)
+    predicted = targets.astype(np.float64)
+    predicted[:, 6:8] = [_folded(10.0, square), _folded(35.0, square), _folded(20.0, square), _folded(0.0, square)]
+    figures = score(recording, np.arange(4), predicted)
+    assert figures["over_slot_frames"] == 1  # the second: the first is far, the third 2.5 cm off, the fourth turned
+    assert figures["over_slot_turn_deg"] == pytest.approx(5.0, abs=1e-3)
+    assert figures["carried_turn_deg"] == pytest.approx(10.0, abs=1e-3)  # 20, 5 and 10 degrees off
+
+
 def test_each_shapes_carried_mean_is_what_knowing_the_shape_gives_the_yaw_in_the_hand():
     from bench.perception_probe import baselines
 
@@ -289,7 +306,8 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(
     # trained on the turn alone, the probe says only what it trained
     assert main([str(kits_rgb), "--targets", "turn", "--steps", "1", "--eval-frames", "4", "--out", str(report)]) == 0
     printed = capsys.readouterr().out
-    assert "turning)" in printed and "right slot" not in printed.split("mean predictor")[1].split("\n", 1)[1]
+    assert "turning, " in printed and "over the slot of" in printed
+    assert "right slot" not in printed.split("mean predictor")[1].split("\n", 1)[1]
     assert json.loads(report.read_text())["rows"][0]["targets"] == ["turn"]
 
     # with the arm's state beside the images: the head reads both, and the report says so
