@@ -528,9 +528,9 @@ class AssemblingKitsPlanner(PhasePlanner):
         return desired @ np.linalg.inv(tcp) @ self.ik.fk(start.q)
 
     def _plan_transport(self) -> list[Step]:
-        """Carry the shape over its slot, turning it to the goal yaw, measured: the turn is recomputed from the
-        shape's yaw now (it may have turned in the hand), keeping the direction chosen at the grasp unless the
-        wrist's limits no longer allow it."""
+        """Carry the shape over its slot, turning it to the goal yaw (on the way, or with `turn_over_slot` there, in
+        place), measured: the turn is recomputed from the shape's yaw now (it may have turned in the hand), keeping
+        the direction chosen at the grasp unless the wrist's limits no longer allow it."""
         start = self._last()
         obj, tcp = self._object_pose(), self._tcp()
         delta = wrap_angle(self.env.goal_rot - planar_yaw(obj[:3, :3]))
