@@ -119,6 +119,22 @@ def test_a_recipe_gives_options_as_a_table_or_as_command_line_pairs(tmp_path):
         load_recipe(recipe)
 
 
+def test_command_line_options_add_to_a_recipes_key_by_key_for_its_own_policy(tmp_path):
+    """`--policy-option K=V` on a recipe with `policy_options`: the recipe's others kept, the command line's value
+    winning where both name one; for another policy, the recipe's (its expert's) are dropped."""
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(
+        f'task = "{AK}"\nepisodes = 1\nout = "o"\npolicy_options = {{close_steps = 8, grasp_height = 0.02}}\n'
+    )
+    config = load_recipe(recipe, policy_options=(("grasp_height", 0.03), ("turn_over_slot", True)))
+    assert dict(config.policy.policy_options) == {"close_steps": 8, "grasp_height": 0.03, "turn_over_slot": True}
+    assert dict(load_recipe(recipe).policy.policy_options) == {"close_steps": 8, "grasp_height": 0.02}
+    named = load_recipe(recipe, policy="expert", policy_options=(("turn_over_slot", True),))  # the recipe's default
+    assert dict(named.policy.policy_options) == {"close_steps": 8, "grasp_height": 0.02, "turn_over_slot": True}
+    other = load_recipe(recipe, policy="random", policy_options=(("seed", 3),))
+    assert dict(other.policy.policy_options) == {"seed": 3}
+
+
 def _held_at(robot: str, options: dict | None, seed: int) -> tuple[float, float, bool, float]:
     """One LiftPegUpright episode of the expert: where along the peg's axis its TCP is as the hand closes (m, the
     sign dropped), the TCP's height as the peg first stands, whether it stood up, and the peg's centre above its

@@ -208,6 +208,9 @@ def load_recipe(path: Path, **overrides: Any) -> RecordConfig:
     data = read_settings(path, "recipe", RECIPE_TABLE, RECIPE_KEYS)
     if "policy_options" in data:
         data["policy_options"] = _recipe_options(data["policy_options"], path)
+        asked, policy = overrides.get("policy_options"), data.get("policy", PolicySettings.policy)
+        if asked and overrides.get("policy") in (None, policy):  # the same policy's options: added key by key
+            overrides = {**overrides, "policy_options": tuple({**dict(data["policy_options"]), **dict(asked)}.items())}
     for key in REQUIRED:
         if key not in data and overrides.get(key) is None:
             raise KitbenchError(f"recipe {path}: missing required key {key!r}")
