@@ -436,7 +436,7 @@ def _kitbench(root: Path, info: dict, episodes: dict[str, np.ndarray], data: dic
             raise Damage(settings_path, f"fps is {recording.fps}, but {INFO_FILE} says {info['fps']}", remedy)
     seeds = _episode_seeds(data, episodes)
     if recording is not None and seeds:
-        asked = recording.seeds or list(range(recording.seed, recording.seed + len(seeds)))
+        asked = recording.implied_seeds(len(seeds))
         if asked != seeds and not recording.only_success:
             raise Damage(settings_path, f"says seeds {_span(asked)}; the data holds {_span(seeds)}", remedy)
         if recording.seed != min(seeds) and recording.seeds is None:

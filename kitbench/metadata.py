@@ -127,9 +127,7 @@ class RecordingInfo:
             raise KitbenchError(
                 f"{root / INFO_FILE}: the settings in feature {CARRIER} are unreadable ({exc})"
             ) from None
-        if seeds != list(range(info.seed, info.seed + len(seeds))):
-            info.seeds = seeds
-        return info
+        return info.holding(seeds)
 
     @classmethod
     def require(cls, root: str | Path, what: str = "") -> RecordingInfo:
@@ -174,11 +172,15 @@ class RecordingInfo:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}, indent=2) + "\n")
 
+    def implied_seeds(self, count: int) -> list[int]:
+        """The seeds of `count` episodes as these settings say them: their list, else consecutive from `seed`."""
+        return self.seeds or list(range(self.seed, self.seed + count))
+
     def holding(self, seeds: list[int]) -> RecordingInfo:
         """These settings for a recording whose episodes are of `seeds`, in order: the list kept where they are not
-        the ones the settings imply (consecutive from `seed`, or the list already there), as after a seed whose
-        simulation failed or a conversion's episode that diverged from its source."""
-        if list(seeds) == (self.seeds or list(range(self.seed, self.seed + len(seeds)))):
+        the ones the settings imply, as after a seed whose simulation failed or a conversion's episode that diverged
+        from its source."""
+        if list(seeds) == self.implied_seeds(len(seeds)):
             return self
         return dataclasses.replace(self, seeds=list(seeds))
 

@@ -14,7 +14,7 @@ import pytest
 from kitbench.recording.convert import convert_config
 from kitbench.recording.recorder import RecordConfig, record
 from tests.processes import kill_once_committed
-from tests.test_recording import _columns, _load
+from tests.test_recording import _columns, _load, kits_successes_only
 
 TASK = "LiftPegUpright-v1"
 COLUMNS = ("observation.state", "observation.environment_state", "action", "executed_action", "episode_seed")
@@ -199,19 +199,7 @@ def test_a_recording_of_successes_only_converts_into_a_dataset_that_passes_the_t
     from kitbench.recording.source import SourceRecording
 
     source = tmp_path / "src"
-    phases = ("approach", "descend", "grasp", "lift", "transport", "align")
-    config = RecordConfig.of(
-        "AssemblingKits-v1",
-        4,
-        source,
-        control_mode="pd_ee_delta_pose",
-        action_noise=0.25,
-        noise_phases=phases,
-        settle_steps=10,
-        only_success=True,
-        mcap=False,
-    )
-    record(config, progress=False)
+    record(kits_successes_only(source, 4), progress=False)
     assert SourceRecording(source).seeds == (0, 1, 2, 4)
     out = tmp_path / "converted"
     summary = record(convert_config(source, out, mcap=False), progress=False)

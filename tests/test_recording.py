@@ -203,6 +203,23 @@ def test_only_success_counts_but_does_not_store_failures(tmp_path):
     assert len(list((out / "mcap").glob("*.mcap"))) == 2
 
 
+def kits_successes_only(out: Path, episodes: int, seed: int = 0) -> RecordConfig:
+    """AssemblingKits successes only, with its recipes' actions, noise and settling (their seed 3 fails), no logs."""
+    phases = ("approach", "descend", "grasp", "lift", "transport", "align")
+    return RecordConfig.of(
+        "AssemblingKits-v1",
+        episodes,
+        out,
+        seed=seed,
+        control_mode="pd_ee_delta_pose",
+        action_noise=0.25,
+        noise_phases=phases,
+        settle_steps=10,
+        only_success=True,
+        mcap=False,
+    )
+
+
 def test_a_successes_only_recording_whose_first_seed_fails_passes_the_training_checks(tmp_path):
     """AssemblingKits' seed 3 fails with its recipes' noise: a recording from seed 3 stores seeds 4 and 5, lists
     them in its settings, and the checks lerobot-train runs through the plugin accept it (they refused it: "says
@@ -211,20 +228,7 @@ def test_a_successes_only_recording_whose_first_seed_fails_passes_the_training_c
     from kitbench.metadata import RecordingInfo
 
     out = tmp_path / "from3"
-    phases = ("approach", "descend", "grasp", "lift", "transport", "align")
-    config = RecordConfig.of(
-        "AssemblingKits-v1",
-        2,
-        out,
-        seed=3,
-        control_mode="pd_ee_delta_pose",
-        action_noise=0.25,
-        noise_phases=phases,
-        settle_steps=10,
-        only_success=True,
-        mcap=False,
-    )
-    record(config, progress=False)
+    record(kits_successes_only(out, 2, seed=3), progress=False)
     check_dataset(out)
     assert RecordingInfo.read(out).seeds == [4, 5]
 

@@ -540,12 +540,11 @@ class AssemblingKitsPlanner(PhasePlanner):
         rotation = (fits or options)[0]
         carry_bottom = self.env.episodes.board.top + self.cfg.carry_clearance
         target = self._goal_tcp(obj, tcp, rotation, carry_bottom)
-        if not self.cfg.turn_over_slot:
+        if self.cfg.turn_over_slot:
+            over = self._move(start, self._goal_tcp(obj, tcp, 0.0, carry_bottom), 0.0, self.grip, "transport")
+            steps = over + self._move(over[-1], target, rotation, self.grip, "transport", speed=self.cfg.turn_speed)
+        else:
             steps = self._move(start, target, rotation, self.grip, "transport")
-            return steps + hold(steps[-1], self.cfg.settle_steps)
-        over = self._move(start, self._goal_tcp(obj, tcp, 0.0, carry_bottom), 0.0, self.grip, "transport")
-        turned = self._move(over[-1], target, rotation, self.grip, "transport", speed=self.cfg.turn_speed)
-        steps = over + turned
         return steps + hold(steps[-1], self.cfg.settle_steps)
 
     def _plan_align(self) -> list[Step]:
