@@ -202,6 +202,78 @@ def test_policy_options_change_inference_and_are_reported(checkpoints, tmp_path)
     assert "policy_options" not in _eval("LiftPegUpright-v1", "state", spec, tmp_path / "plain", 1)
 
 
+def test_chunk_ensembling_weighs_each_step_as_acts_own_ensembler():
+    """kitbench's ensembler (for Diffusion) and lerobot's ACT one give the same action at every step, chunks of
+    several lengths and coefficients, a batch of episodes at once."""
+    import torch
+    from lerobot.policies.act.modeling_act import ACTTemporalEnsembler
+
+    from kitbench.policies.ensemble import ChunkEnsembler
+
+    generator = torch.Generator().manual_seed(0)
+    for coeff, steps in ((0.01, 8), (0.3, 5), (-0.2, 3), (0.0, 1)):
+        ours, theirs = ChunkEnsembler(coeff), ACTTemporalEnsembler(coeff, steps)
+        theirs.reset()
+        for _ in range(steps + 6):  # past the first chunk's end: every step averages `steps` chunks
+            chunk = torch.randn(3, steps, 4, generator=generator)
+            torch.testing.assert_close(ours.step(chunk), theirs.update(chunk.clone()), rtol=1e-5, atol=1e-6)
+
+
+def test_a_diffusion_checkpoint_re_plans_every_step_and_averages_with_temporal_ensembling(checkpoints, tmp_path):
+    """Diffusion's config has no ensembling; kitbench's option predicts a chunk every step from the observation
+    window. A coefficient so large that only the oldest chunk counts acts exactly as plain Diffusion, which
+    executes its first chunk open loop; 0.01 averages the chunks predicted since, so the actions differ."""
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+
+    checkpoint = str(checkpoints["LiftPegUpright-v1", "state", "diffusion"])
+    env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_ee_delta_pose")
+
+    def actions(options, steps):
+        policy = LeRobotPolicy(checkpoint, options=options)
+        obs, info = env.reset(seed=7)
+        policy.reset(env, 7, obs, info)  # the same noise for the first chunk either way
+        return np.stack([policy.act(obs) for _ in range(steps)])  # one observation: the env stands still
+
+    chunk = 5  # actions of each chunk: the test config executes one, its horizon allows up to 7
+    plain = actions({"n_action_steps": chunk}, chunk)
+    oldest = actions({"temporal_ensemble_coeff": 1e3, "n_action_steps": chunk}, chunk)
+    averaged = actions({"temporal_ensemble_coeff": 0.01, "n_action_steps": chunk}, chunk + 3)  # nothing runs dry
+    np.testing.assert_allclose(oldest, plain, atol=1e-6)
+    np.testing.assert_allclose(averaged[0], plain[0], atol=1e-6)  # one chunk to average at the first step
+    assert np.abs(averaged[1:chunk] - plain[1:]).max() > 1e-4
+    env.close()
+
+    suite = adhoc_suite("LiftPegUpright-v1", 3, 0, control_mode="pd_ee_delta_pose")
+    options = (("temporal_ensemble_coeff", 0.01),)
+    spec = f"lerobot:{checkpoint}"
+    runs = [
+        run_eval(
+            EvalConfig.of(suite, spec, tmp_path / f"b{n}", device="cpu", batch_size=n, policy_options=options),
+            progress=False,
+        )
+        for n in (1, 3)
+    ]
+    assert runs[0]["policy_options"] == {"temporal_ensemble_coeff": 0.01}
+    for a, b in zip(runs[0]["per_episode"], runs[1]["per_episode"], strict=True):
+        assert (a["seed"], a["success"], a["failure"], a["length"]) == (
+            b["seed"],
+            b["success"],
+            b["failure"],
+            b["length"],
+        )
+
+
+@pytest.mark.parametrize("value", ["fast", True, float("nan"), None])
+def test_a_bad_ensembling_coefficient_for_diffusion_is_one_line(checkpoints, value):
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+
+    checkpoint = str(checkpoints["LiftPegUpright-v1", "state", "diffusion"])
+    with pytest.raises(KitbenchError) as error:
+        LeRobotPolicy(checkpoint, options={"temporal_ensemble_coeff": value})
+    message = str(error.value)
+    assert "\n" not in message and f"temporal_ensemble_coeff={value!r}: must be a finite number" in message
+
+
 @pytest.mark.parametrize(
     ("option", "needle"),
     [

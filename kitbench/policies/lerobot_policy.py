@@ -27,6 +27,7 @@ from kitbench.envs.interface import as_kitbench
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
 from kitbench.errors import KitbenchError, check_choice
 from kitbench.metadata import RecordingInfo
+from kitbench.policies.ensemble import ENSEMBLE_OPTION, EnsembledChunks
 from kitbench.policies.registry import policy_source
 
 
@@ -138,7 +139,8 @@ class LeRobotPolicy:
 
     def __init__(self, checkpoint: str, device: str = "cpu", options: dict | None = None):
         """`device`: where the network runs (`resolve_device`'s choices); its inputs are built on the CPU.
-        `options`: config fields set for this run (`apply_options`)."""
+        `options`: config fields set for this run (`apply_options`); on a Diffusion checkpoint
+        `temporal_ensemble_coeff` is kitbench's (`policies.ensemble`): it re-plans every step and averages."""
         import torch
         from lerobot.configs import PreTrainedConfig
         from lerobot.policies import make_pre_post_processors
@@ -151,7 +153,11 @@ class LeRobotPolicy:
         if hasattr(cfg, "pretrained_backbone_weights"):
             cfg.pretrained_backbone_weights = None  # the trained weights replace them; never download
         self.options = dict(options or {})
-        apply_options(cfg, self.options)
+        settings = dict(self.options)
+        ensembled = cfg.type == "diffusion" and ENSEMBLE_OPTION in settings  # its config has none: kitbench's
+        coeff = settings.pop(ENSEMBLE_OPTION, None) if ensembled else None
+        apply_options(cfg, settings)
+        self._ensemble = EnsembledChunks(coeff, cfg.n_obs_steps, cfg.input_features) if ensembled else None
         self.config = cfg
         self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         self.pre, self.post = make_pre_post_processors(
@@ -214,7 +220,7 @@ class LeRobotPolicy:
     def reset(self, env, seed, obs, info):
         self.check(env)
         self._env = env
-        self.policy.reset()
+        self._restart()
         self._torch.manual_seed(seed)  # stochastic policies (Diffusion) sample the same noise for a seed
         self._sampler = PointSampler(self.points, seed)  # the recorder draws a seed's points the same way
 
@@ -229,9 +235,23 @@ class LeRobotPolicy:
         batch["task"] = as_kitbench(env).task_description()
         return batch
 
+    def _restart(self) -> None:
+        """A new episode (or batch of them): nothing queued, observed or ensembled from the last one."""
+        self.policy.reset()
+        if self._ensemble is not None:
+            self._ensemble.reset()
+
+    def _select(self, batch: dict):
+        """This step's normalised action (batch, action) from a preprocessed batch: the policy's own `select_action`,
+        or with kitbench's ensembling a chunk predicted from the observation window, averaged with the earlier
+        chunks' predictions for this step. The policy's own queues stay empty, so it predicts from the window."""
+        if self._ensemble is None:
+            return self.policy.select_action(batch)
+        return self._ensemble.step(self.policy.predict_action_chunk, batch)
+
     def act(self, obs):
         with self._torch.inference_mode():
-            action = self.post(self.policy.select_action(self.pre(self._batch(obs))))
+            action = self.post(self._select(self.pre(self._batch(obs))))
         return action.reshape(-1).cpu().numpy().astype(np.float32)
 
     # -- batches: several episodes in lockstep, one network call a step (`evaluation.episode.evaluate_batch`) --
@@ -241,7 +261,7 @@ class LeRobotPolicy:
         for env in envs:
             self.check(env)
         self._envs = list(envs)
-        self.policy.reset()
+        self._restart()
         self._torch.manual_seed(seeds[0])
         self._samplers = [PointSampler(self.points, seed) for seed in seeds]
 
@@ -257,7 +277,7 @@ class LeRobotPolicy:
             ]
             batch = {k: torch.cat([r[k] for r in rows]) for k, v in rows[0].items() if isinstance(v, torch.Tensor)}
             batch["task"] = [t for r in rows for t in (r["task"] if isinstance(r["task"], list) else [r["task"]])]
-            actions = self.post(self.policy.select_action(batch))
+            actions = self.post(self._select(batch))
         return actions.reshape(len(obs), -1).cpu().numpy().astype(np.float32)
 
     def action_chunk(self, obs) -> np.ndarray:
