@@ -128,16 +128,13 @@ class Plan:
 
 
 def parse_sweep(texts: list[str], policy_type: str) -> tuple[tuple[tuple[str, object], ...], ...]:
-    """`KEY=V1,V2` flags as every combination of their values, each key checked against the policy config's
-    fields (a key the policy lacks would only fail after training)."""
+    """`KEY=V1,V2` flags as every combination of their values, each key checked against the settings a checkpoint
+    of the policy takes (a key the policy lacks would only fail after training)."""
     import itertools
 
-    import lerobot.policies  # noqa: F401  (registers the policy types' configs)
-    from lerobot.configs import PreTrainedConfig
+    from kitbench.policies.lerobot_policy import option_names, parse_option
 
-    from kitbench.policies.lerobot_policy import parse_option
-
-    fields = {f.name for f in dataclasses.fields(PreTrainedConfig.get_choice_class(policy_type))}
+    fields = option_names(policy_type)
     axes = []
     for text in texts:
         key, _, values = text.partition("=")

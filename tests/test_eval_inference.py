@@ -274,6 +274,15 @@ def test_a_bad_ensembling_coefficient_for_diffusion_is_one_line(checkpoints, val
     assert "\n" not in message and f"temporal_ensemble_coeff={value!r}: must be a finite number" in message
 
 
+def test_a_diffusion_checkpoint_names_kitbench_ensembling_among_its_settings(checkpoints):
+    from kitbench.policies.lerobot_policy import LeRobotPolicy
+
+    checkpoint = str(checkpoints["LiftPegUpright-v1", "state", "diffusion"])
+    with pytest.raises(KitbenchError, match="'temporal_ensemble_coef': the diffusion policy has no such setting") as e:
+        LeRobotPolicy(checkpoint, options={"temporal_ensemble_coef": 0.01})
+    assert "temporal_ensemble_coeff" in str(e.value).split("valid choices: ")[1].split(", ")
+
+
 @pytest.mark.parametrize(
     ("option", "needle"),
     [

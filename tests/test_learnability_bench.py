@@ -39,6 +39,18 @@ def test_bad_arguments_are_one_line_and_write_nothing(tmp_path, args, message):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_sweep_takes_the_settings_a_checkpoint_takes_kitbench_ensembling_on_diffusion_included():
+    from bench.learnability import UsageError, parse_sweep
+
+    sweep = parse_sweep(["temporal_ensemble_coeff=0.01,0.1", "n_action_steps=8"], "diffusion")
+    assert sweep == (
+        (("temporal_ensemble_coeff", 0.01), ("n_action_steps", 8)),
+        (("temporal_ensemble_coeff", 0.1), ("n_action_steps", 8)),
+    )
+    with pytest.raises(UsageError, match="the diffusion policy has no setting 'chunk_size'"):
+        parse_sweep(["chunk_size=5"], "diffusion")
+
+
 def _tiny_config(where: Path) -> Path:
     """The shipped ACT LiftPegUpright config cut to a few parameters and no in-training evaluation."""
     config = json.loads((ROOT / "policies" / "act_lift_peg_upright_state.json").read_text())

@@ -112,6 +112,21 @@ def resolve_device(device: str) -> str:
     return device
 
 
+# inference settings kitbench runs itself for a policy type whose lerobot config lacks them
+KITBENCH_OPTIONS = {"diffusion": (ENSEMBLE_OPTION,)}
+
+
+def option_names(policy_type: str) -> set[str]:
+    """Every `--policy-option` key a checkpoint of `policy_type` takes: its config's fields and kitbench's own."""
+    import dataclasses
+
+    import lerobot.policies  # noqa: F401  (registers the policy types' configs)
+    from lerobot.configs import PreTrainedConfig
+
+    fields = {f.name for f in dataclasses.fields(PreTrainedConfig.get_choice_class(policy_type))}
+    return fields | set(KITBENCH_OPTIONS.get(policy_type, ()))
+
+
 def apply_options(cfg, options: dict) -> None:
     """Set a checkpoint's config fields for this run (inference settings: `temporal_ensemble_coeff`,
     `n_action_steps`, `num_inference_steps`, ...), then re-run the config's own checks. A key the policy's config
@@ -121,9 +136,10 @@ def apply_options(cfg, options: dict) -> None:
     fields = {f.name for f in dataclasses.fields(cfg)}
     for key, value in options.items():
         if key not in fields:
+            valid = fields | set(KITBENCH_OPTIONS.get(cfg.type, ()))
             raise KitbenchError(
                 f"policy option {key!r}: the {cfg.type} policy has no such setting; valid choices: "
-                f"{', '.join(sorted(fields))}"
+                f"{', '.join(sorted(valid))}"
             )
         setattr(cfg, key, value)
     try:
