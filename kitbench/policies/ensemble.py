@@ -69,13 +69,13 @@ class ObservationWindow:
         self._frames.clear()
 
     def push(self, batch: dict) -> dict:
+        import torch
+
         frame = {k: batch[k] for k in self.keys}
         if not self._frames:
             self._frames.extend([frame] * self.size)
         else:
             self._frames.append(frame)
-        import torch
-
         return {k: torch.stack([f[k] for f in self._frames], dim=1) for k in self.keys}
 
 
@@ -84,7 +84,7 @@ class EnsembledChunks:
     averaged with the earlier chunks' predictions for this step."""
 
     def __init__(self, coeff: object, window: int, keys: Iterable[str]):
-        self.ensembler = ChunkEnsembler(check_coefficient(coeff))
+        self.ensembler = ChunkEnsembler(coeff)
         self.window = ObservationWindow(window, keys)
 
     def reset(self) -> None:

@@ -170,7 +170,7 @@ class LeRobotPolicy:
             cfg.pretrained_backbone_weights = None  # the trained weights replace them; never download
         self.options = dict(options or {})
         settings = dict(self.options)
-        ensembled = cfg.type == "diffusion" and ENSEMBLE_OPTION in settings  # its config has none: kitbench's
+        ensembled = ENSEMBLE_OPTION in settings and ENSEMBLE_OPTION in KITBENCH_OPTIONS.get(cfg.type, ())
         coeff = settings.pop(ENSEMBLE_OPTION, None) if ensembled else None
         apply_options(cfg, settings)
         self._ensemble = EnsembledChunks(coeff, cfg.n_obs_steps, cfg.input_features) if ensembled else None
