@@ -254,13 +254,8 @@ def test_a_diffusion_checkpoint_re_plans_every_step_and_averages_with_temporal_e
         for n in (1, 3)
     ]
     assert runs[0]["policy_options"] == {"temporal_ensemble_coeff": 0.01}
-    for a, b in zip(runs[0]["per_episode"], runs[1]["per_episode"], strict=True):
-        assert (a["seed"], a["success"], a["failure"], a["length"]) == (
-            b["seed"],
-            b["success"],
-            b["failure"],
-            b["length"],
-        )
+    outcomes = [[(e["seed"], e["success"], e["failure"], e["length"]) for e in r["per_episode"]] for r in runs]
+    assert outcomes[0] == outcomes[1] and len(outcomes[0]) == 3
 
 
 @pytest.mark.parametrize("value", ["fast", True, float("nan"), None])

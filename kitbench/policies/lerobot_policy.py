@@ -136,10 +136,9 @@ def apply_options(cfg, options: dict) -> None:
     fields = {f.name for f in dataclasses.fields(cfg)}
     for key, value in options.items():
         if key not in fields:
-            valid = fields | set(KITBENCH_OPTIONS.get(cfg.type, ()))
             raise KitbenchError(
                 f"policy option {key!r}: the {cfg.type} policy has no such setting; valid choices: "
-                f"{', '.join(sorted(valid))}"
+                f"{', '.join(sorted(option_names(cfg.type)))}"
             )
         setattr(cfg, key, value)
     try:
