@@ -137,7 +137,8 @@ def test_the_learn_script_runs_both_trainings_each_with_its_variant_as_one_argum
     ak, diffusion = runs["ak"], runs["diffusion"]
     assert ak[ak.index("--config") + 1] == "act_assembling_kits_rgb_cpu"
     assert "--extra=--policy.device=cuda --batch_size=256 --num_workers=8" in ak and ak[-2:] == ["--tag", "gpu"]
-    assert diffusion[diffusion.index("--config") + 1] == "diffusion_lift_peg_upright_rgb"
+    assert diffusion[diffusion.index("--config") + 1] == "diffusion_lift_peg_upright_rgb_cpu"
+    assert "--extra=--policy.device=cuda --policy.use_amp=false --num_workers=6" in diffusion
     # the recordings split the 14 workers between them
     assert int(ak[ak.index("--workers") + 1]) + int(diffusion[diffusion.index("--workers") + 1]) == 14
     assert "== all done" in (tmp_path / "kb" / "run.log").read_text()

@@ -1,6 +1,6 @@
 """`kitbench reproduce`: a shipped config recorded, trained and scored end to end at a tiny scale, its figure compared
 with the stated published interval (exit 0 inside, 3 outside); every published figure names a shipped config and
-recipe; bad input is one line with nothing written."""
+the recipe that writes its dataset; bad input is one line with nothing written."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from kitbench import cli
+from kitbench.recording.recorder import load_recipe
 from kitbench.reproduce import PUBLISHED, load_published
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,6 +28,8 @@ def test_every_published_figure_names_a_shipped_config_and_recipe_and_every_stat
         assert all((ROOT / "eval" / "suites" / f"{s}.toml").is_file() for s in entry.suites)
         config = json.loads((ROOT / "policies" / f"{name}.json").read_text())
         assert config["steps"] == entry.steps
+        # the figure was made on what the recipe writes, and that is what the config trains on
+        assert str(load_recipe(entry.recipe).out) == config["dataset"]["root"], name
 
 
 def _published(tmp_path: Path, seed_success: list[int], seed_episodes: list[int]) -> Path:
