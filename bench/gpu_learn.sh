@@ -45,8 +45,8 @@ PY=${PY:-python3}
 # 8x larger batch, the CPU runs' 640 k samples (a batch of 256 takes about as long an update as one of 64: the update
 # is bound by launching kernels). On one H200 (2026-11-29), with the Diffusion GPU config beside it: 0.059 and 0.054 s
 # a step, 4.2 and 4.5 minutes of training, each scored in 1-2 minutes (docs/learnability.md). Diffusion: the CPU config
-# as shipped, on its recording whose swing ends in the air (97% at one training seed on 2 CPU cores, against 68% from
-# the recording the GPU config trains on), in float32 (its bf16 autocast is the CPU's lever).
+# as shipped, on its recording whose swing ends in the air (96.5% over three training seeds on 2 CPU cores; 68% at
+# one seed from the recording the GPU config trains on), in float32 (its bf16 autocast is the CPU's lever).
 AK=${AK_CONFIG:-act_assembling_kits_rgb_cpu}; AK_DEMOS=${AK_DEMOS:-1000}; AK_STEPS=${AK_STEPS:-2500}
 AK_EXTRA=${AK_EXTRA:---policy.device=cuda --batch_size=256 --num_workers=8}
 DF=${DF_CONFIG:-diffusion_lift_peg_upright_rgb_cpu}; DF_DEMOS=${DF_DEMOS:-200}; DF_STEPS=${DF_STEPS:-5000}
