@@ -10,7 +10,8 @@ recorded at the config's camera size, or record it first), and one update is ler
   alone), the optimizer's step, the rest (the transformer or U-Net, the loss, gradient clipping), and the data
   a batch costs one loader process (`data`: hidden behind the update when a loader worker has a core);
 - **levers**, each the baseline with one thing changed, seconds an update (median of `--steps` after warm-up),
-  samples/s and the ratio to the baseline: `bf16` (lerobot's `use_amp`, bf16 autocast on the CPU), `mkldnn_bf16`
+  samples/s and the ratio to the baseline: `fp32` (lerobot's `use_amp` off), `bf16` (`use_amp` on: bf16
+  autocast on the CPU), `mkldnn_bf16`
   (fp32 tensors, oneDNN's convolutions and matrix products computed in bf16: `torch.backends.mkldnn`),
   `channels_last` (the backbone's convolutions in NHWC), `bf16+channels_last`, `size=<W>` (the cameras rendered
   at W x W: images resized, the model sized for them), `batch=<N>` (per-sample cost), `threads=1`, `compile`
@@ -35,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIGS = ("act_lift_peg_upright_rgb", "diffusion_lift_peg_upright_rgb", "act_assembling_kits_rgb")
 LEVERS = (
     "baseline",
+    "fp32",
     "bf16",
     "mkldnn_bf16",
     "channels_last",
@@ -148,6 +150,8 @@ def measure(bench: Bench, lever: str, steps: int) -> dict:
     changes: dict = {}
     if name == "bf16" or name == "bf16+channels_last":
         changes["policy.use_amp"] = True
+    if name == "fp32":  # a config shipped with use_amp measured without it
+        changes["policy.use_amp"] = False
     if name == "batch":
         changes["batch_size"] = int(value)
     if name == "crop":
@@ -241,7 +245,9 @@ def measure(bench: Bench, lever: str, steps: int) -> dict:
         "compile_seconds": compile_seconds,
     }
     if name == "baseline":
-        out.update(_parts(policy, batches[0], optimizer, steps, nullcontext))
+        # the backbone timed as the update runs it: under bf16 autocast when the config trains with use_amp
+        amp = (lambda: torch.autocast("cpu", dtype=torch.bfloat16)) if cfg.policy.use_amp else nullcontext
+        out.update(_parts(policy, batches[0], optimizer, steps, amp))
     return out
 
 

@@ -35,7 +35,7 @@ def test_bad_arguments_are_one_line(args, message):
 @pytest.mark.parametrize(
     ("config", "levers"),
     [
-        ("act_lift_peg_upright_rgb", "baseline,bf16,channels_last,size=64,batch=4"),
+        ("act_lift_peg_upright_rgb", "baseline,fp32,bf16,channels_last,size=64,batch=4"),
         ("diffusion_lift_peg_upright_rgb", "baseline,channels_last,size=64"),  # images (batch, steps, C, H, W)
     ],
 )
