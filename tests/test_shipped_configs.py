@@ -45,6 +45,12 @@ def test_config_parses_with_lerobot_and_matches_its_recipe(path):
     assert cfg.env.robot == recipe.env.robot  # None: the task's default robot, in both
     assert cfg.dataset.repo_id == recipe.dataset_repo_id
     assert (cfg.env.obs_type == "pixels_state") == (recipe.env.obs_mode != "state")
+    # lerobot-eval's env renders the cameras as the recipe recorded them, at the size the policy reads
+    assert (cfg.env.camera_size, cfg.env.camera_view) == (recipe.env.camera_size, recipe.env.camera_view)
+    for name, feature in raw["policy"].get("input_features", {}).items():
+        if feature["type"] == "VISUAL":
+            channels, height, width = feature["shape"]
+            assert cfg.env.features[f"pixels/{name.rpartition('.')[2]}"].shape == (height, width, channels)
 
 
 LENGTH_SEEDS = 10  # episodes per recipe whose lengths the chunk check reads
@@ -129,8 +135,13 @@ def test_config_fits_the_data_its_recipe_writes(path):
         if entries and mode is not None:
             assert mode.value == "IDENTITY", f"{path.name}: {key} {entries} are held still, normalised {mode.value}"
 
+    sensors = recipe.env.sensor_configs  # the recipe's camera size and view, where it sets them
     state_env = make_env(
-        recipe.task, obs_mode="state", control_mode=recipe.env.control_mode, robot_uids=recipe.env.robot
+        recipe.task,
+        obs_mode="state",
+        control_mode=recipe.env.control_mode,
+        robot_uids=recipe.env.robot,
+        **({"sensor_configs": sensors} if sensors else {}),
     )
     try:
         recorded = dataset_features(state_env)
