@@ -37,7 +37,8 @@ per demo count: give variants (another config, action noise) their own --tag so 
 Layout: <out>/<task>_<obs>_d<D>[_<tag>]/data (the dataset, record.log) holds what the policies share; each policy
 trains and is scored under <policy>/ (<policy>_seed<S>/ with --train-seeds: train/, train.log, eval/, eval.log;
 eval_<suite>/ for a suite other than the standard one). A dataset recorded by the same command
-from the same recipe with this kitbench version is reused, so a second policy on the same demos skips recording.
+from the same recipe with this kitbench version is reused, so a second policy on the same demos skips recording;
+a folder that holds another recipe's recording (the folder's name carries no robot) is refused, not recorded over.
 
 Exit status: 2 for a bad argument (nothing written), 1 when a command fails (it and the tail of its log printed).
 """
@@ -451,6 +452,20 @@ def run_name(plan: Plan, demos: int) -> str:
     return f"{plan.snake}_{plan.obs}_d{demos}" + (f"_{plan.tag}" if plan.tag else "")
 
 
+def check_run_folders(plan: Plan) -> None:
+    """A run folder holds one recipe's recording and what was trained on it: the same --tag given to another
+    recipe (the SO-101's and the Panda's of one task share a name) would record over that data."""
+    for demos in plan.demos:
+        stamp = plan.out / run_name(plan, demos) / "record_request.json"
+        if not stamp.is_file():
+            continue
+        command = json.loads(stamp.read_text()).get("command", [])
+        if len(command) > 2 and Path(command[2]).resolve() != plan.recipe.resolve():
+            raise UsageError(
+                f"{stamp.parent} holds a recording of {command[2]}, not {plan.recipe}; give this recipe another --tag"
+            )
+
+
 def policy_dir_of(plan: Plan, run_dir: Path, seed: int | None) -> Path:
     return run_dir / (plan.policy if seed is None else f"{plan.policy}_seed{seed}")
 
@@ -785,6 +800,7 @@ def main() -> int:
     args = build_parser().parse_args()
     try:
         plan = check_args(args)
+        check_run_folders(plan)
     except UsageError as exc:
         print(f"learnability: error: {exc}", file=sys.stderr)
         return 2

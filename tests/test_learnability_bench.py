@@ -39,6 +39,18 @@ def test_bad_arguments_are_one_line_and_write_nothing(tmp_path, args, message):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_tag_given_to_another_recipe_is_refused_before_it_records_over_that_run(tmp_path):
+    run_dir = tmp_path / "out" / "lift_peg_upright_state_d2"
+    run_dir.mkdir(parents=True)
+    stamp = run_dir / "record_request.json"
+    stamp.write_text(json.dumps({"command": ["kitbench", "record", "datasets/lift_peg_upright_so101_state.toml"]}))
+    run = _bench("--recipe", "datasets/lift_peg_upright_state.toml", "--out", str(tmp_path / "out"), cwd=ROOT)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert "holds a recording of datasets/lift_peg_upright_so101_state.toml" in run.stderr
+    assert "give this recipe another --tag" in run.stderr
+    assert [p.name for p in run_dir.iterdir()] == ["record_request.json"]  # nothing recorded or removed
+
+
 def test_a_sweep_takes_the_settings_a_checkpoint_takes_kitbench_ensembling_on_diffusion_included():
     from bench.learnability import UsageError, parse_sweep
 
