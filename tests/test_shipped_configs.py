@@ -45,7 +45,7 @@ def test_config_parses_with_lerobot_and_matches_its_recipe(path):
     assert cfg.env.robot == recipe.env.robot  # None: the task's default robot, in both
     assert cfg.dataset.repo_id == recipe.dataset_repo_id
     assert (cfg.env.obs_type == "pixels_state") == (recipe.env.obs_mode != "state")
-    # lerobot-eval's env renders the cameras as the recipe recorded them, at the size the policy reads
+    # the env the config builds renders the cameras as the recipe recorded them, at the size the policy reads
     assert (cfg.env.camera_size, cfg.env.camera_view) == (recipe.env.camera_size, recipe.env.camera_view)
     for name, feature in raw["policy"].get("input_features", {}).items():
         if feature["type"] == "VISUAL":
