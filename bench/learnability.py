@@ -459,7 +459,7 @@ def check_run_folders(plan: Plan) -> None:
         stamp = plan.out / run_name(plan, demos) / "record_request.json"
         if not stamp.is_file():
             continue
-        command = json.loads(stamp.read_text()).get("command", [])
+        command = json.loads(stamp.read_text()).get("command", [])  # record_command's: the recipe third
         if len(command) > 2 and Path(command[2]).resolve() != plan.recipe.resolve():
             raise UsageError(
                 f"{stamp.parent} holds a recording of {command[2]}, not {plan.recipe}; give this recipe another --tag"
