@@ -1,5 +1,5 @@
 """Benchmark the AssemblingKits-v1 expert: `python bench/expert_assembling_kits.py [--robot panda_wristcam|so101]
-[--seeds N] [--first S] [--workers K] [--control-mode M] [--expert-option KEY=VALUE ...]`.
+[--seeds N] [--first S] [--workers K] [--control-mode M] [--expert-option KEY=VALUE ...] [--misread MM,DEG ...]`.
 
 Runs seeds S..S+N-1 (the expert's settings with any `--expert-option` replaced, `pd_joint_pos`, 200-step limit) and
 prints the success rate, the steps of successful episodes (median / p90 / max), a per-shape table, failures by
@@ -7,6 +7,11 @@ category and episodes per second. The table's `one grip` is how often the shape 
 share of its lifted episodes whose yaw in the hand (the shape's less the hand's, folded by the shape's symmetry and
 by the hand's half turn) is within 5 degrees of the shape's commonest; a policy that reads the slot's yaw and its
 own can turn such a shape to its slot without reading the shape's yaw.
+
+`--misread MM,DEG` (repeatable) runs the seeds once per pair with the expert reading the slot wrong: its centre MM
+millimetres off in a direction drawn per seed, its yaw DEG degrees off with a sign drawn per seed, the same error
+all episode long, and prints one row per pair. What a policy's reading of the slot and the shape must achieve is
+where these rows fall off (the expert measures the shape in its hand exactly, so the rows bound a policy from above).
 """
 
 from __future__ import annotations
@@ -61,13 +66,38 @@ def grip_yaw(env) -> tuple[float, float]:
     return (float(math.degrees(shape_yaw - hand_yaw) % period) if period else 0.0), period
 
 
-def run_seeds(args: tuple[list[int], str, str, dict]) -> list[Episode]:
-    seeds, control_mode, robot, options = args
+class MisreadSlot:
+    """The env as an expert that misreads its slot sees it: `goal_pos` shifted in the table's plane, `goal_rot`
+    turned; everything else, the success test included, is the env's own."""
+
+    def __init__(self, env, shift_xy: np.ndarray, turn: float):
+        self._env = env
+        self.goal_pos = env.goal_pos + np.array([shift_xy[0], shift_xy[1], 0.0])
+        self.goal_rot = env.goal_rot + turn
+
+    def __getattr__(self, name: str):
+        return getattr(self._env, name)
+
+
+def misread_of(seed: int, misread: tuple[float, float]) -> tuple[np.ndarray, float]:
+    """(xy shift in m, turn in rad): MM millimetres in a direction and DEG degrees with a sign, drawn from the seed
+    alone, so every pair's rows see the same directions."""
+    rng = np.random.default_rng([seed, 0x6D69_7372])
+    angle = rng.uniform(0.0, 2.0 * math.pi)
+    sign = 1.0 if rng.random() < 0.5 else -1.0
+    shift = misread[0] / 1000.0 * np.array([math.cos(angle), math.sin(angle)])
+    return shift, sign * math.radians(misread[1])
+
+
+def run_seeds(args: tuple[list[int], str, str, dict, tuple[float, float] | None]) -> list[Episode]:
+    seeds, control_mode, robot, options, misread = args
     env = gym.make(TASK, control_mode=control_mode, robot_uids=robot)
     episodes = []
     for seed in seeds:
         obs, info = env.reset(seed=seed)
         planner: AssemblingKitsPlanner = env.unwrapped.make_expert(options)
+        if misread is not None:
+            planner.env = MisreadSlot(planner.env, *misread_of(seed, misread))
         steps, terminated, truncated, grip = 0, False, False, None
         while not (terminated or truncated):
             phase = planner.phase
@@ -98,11 +128,12 @@ def run(
     robot: str = "panda_wristcam",
     first: int = 0,
     options: dict | None = None,
+    misread: tuple[float, float] | None = None,
 ) -> list[Episode]:
     seeds = list(range(first, first + n_seeds))
     if workers <= 1:
-        return run_seeds((seeds, control_mode, robot, options or {}))
-    chunks = [(seeds[i::workers], control_mode, robot, options or {}) for i in range(workers)]
+        return run_seeds((seeds, control_mode, robot, options or {}, misread))
+    chunks = [(seeds[i::workers], control_mode, robot, options or {}, misread) for i in range(workers)]
     with mp.get_context("spawn").Pool(workers) as pool:
         results = pool.map(run_seeds, chunks)
     return sorted((e for chunk in results for e in chunk), key=lambda e: e.seed)
@@ -154,6 +185,39 @@ def report(episodes: list[Episode], seconds: float, control_mode: str) -> str:
     return "\n".join(lines)
 
 
+def misread_report(rows: list[tuple[tuple[float, float], list[Episode]]], control_mode: str) -> str:
+    """One line per misread pair: successes with their 95% interval, the shapes that need a turn apart, failures."""
+    from kitbench.evaluation.stats import wilson_interval
+
+    lines = [
+        f"AssemblingKits-v1 expert ({control_mode}) reading its slot wrong, the same seeds each row",
+        "slot off (mm, deg)  success              95% interval   turned shapes  failures",
+    ]
+    any_turn = {SHAPE_NAMES.index("disc"), SHAPE_NAMES.index("ring")}
+    for (mm, deg), episodes in rows:
+        n, k = len(episodes), sum(e.success for e in episodes)
+        low, high = wilson_interval(k, n)
+        turned = [e for e in episodes if e.shape_id not in any_turn]
+        turned_k = sum(e.success for e in turned)
+        failures = collections.Counter(e.category for e in episodes if not e.success)
+        named = ", ".join(f"{c} {v}" for c, v in failures.most_common()) or "-"
+        lines.append(
+            f"{mm:6.2f} {deg:5.2f}       {k:4d}/{n:<4d} {100.0 * k / n:5.1f}%  "
+            f"{100 * low:5.1f}-{100 * high:5.1f}%  {turned_k:4d}/{len(turned):<4d}     {named}"
+        )
+    return "\n".join(lines)
+
+
+def parse_misread(text: str) -> tuple[float, float]:
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--misread wants MM,DEG (e.g. 1.5,2), got {text!r}") from None
+    if not (mm >= 0.0 and deg >= 0.0):
+        raise argparse.ArgumentTypeError(f"--misread wants MM,DEG both >= 0, got {text!r}")
+    return mm, deg
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="panda_wristcam", choices=("panda_wristcam", "so101"), help="whose expert")
@@ -164,11 +228,27 @@ def main() -> None:
     parser.add_argument(
         "--expert-option", action="append", default=[], metavar="KEY=VALUE", help="an expert config field, repeatable"
     )
+    parser.add_argument(
+        "--misread",
+        action="append",
+        default=[],
+        type=parse_misread,
+        metavar="MM,DEG",
+        help="run once per pair with the slot read MM mm and DEG degrees off (repeatable)",
+    )
     args = parser.parse_args()
     from kitbench.policies.lerobot_policy import parse_option
 
     options = dict(map(parse_option, args.expert_option))
     start = time.perf_counter()
+    if args.misread:
+        rows = [
+            (m, run(args.seeds, args.workers, args.control_mode, args.robot, args.first, options, m))
+            for m in args.misread
+        ]
+        print(misread_report(rows, args.control_mode))
+        print(f"{time.perf_counter() - start:.1f} s")
+        return
     episodes = run(args.seeds, args.workers, args.control_mode, args.robot, args.first, options)
     print(report(episodes, time.perf_counter() - start, args.control_mode))
 
