@@ -104,3 +104,29 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch,
     err = capsys.readouterr().err
     assert err.startswith("kitbench reproduce: error: ") and err.count("\n") == 1 and message in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_finished_training_is_replaced_only_with_a_line_saying_what_changed(tmp_path, capsys, monkeypatch):
+    from kitbench.training import run
+
+    policy_dir, data = tmp_path / "act_seed1000", tmp_path / "data"
+    config = ROOT / "policies" / f"{CONFIG}.json"
+    finished = policy_dir / "train" / "checkpoints" / "last" / "pretrained_model"
+    finished.mkdir(parents=True)
+    (finished / "model.safetensors").write_bytes(b"")
+    command = run.train_command(config, data, policy_dir / "train", None, 1000)
+    request = {"command": command, "env": {"OMP_NUM_THREADS": "2"}, "data": run.hashlib.sha256(b"d").hexdigest()}
+    (policy_dir / "train_done.json").write_text(json.dumps({"request": request, "trained": {"seconds": 1.0}}))
+
+    assert run.train(config, data, policy_dir, threads="2", seed=1000, data_stamp="d")["reused"] is True
+    assert capsys.readouterr().err == ""
+
+    def stop(*args, **kwargs):
+        raise RuntimeError("not trained in this test")
+
+    monkeypatch.setattr(run, "run_logged", stop)
+    with pytest.raises(RuntimeError):
+        run.train(config, data, policy_dir, threads="1", seed=2000, data_stamp="d")
+    said = capsys.readouterr().err.strip().splitlines()
+    change = "OMP_NUM_THREADS 2 -> 1; arguments --seed=1000 -> --seed=2000"
+    assert said == [f"retraining {policy_dir / 'train'} (its finished training differs: {change})"]

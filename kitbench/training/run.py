@@ -178,6 +178,23 @@ def loop_seconds(log: Path) -> float | None:
     return (stamps["End of training"] - stamps["num_total_params="]).total_seconds()
 
 
+def request_change(before: dict, now: dict) -> str:
+    """What differs between a finished training's request and this one, in words: why it is not reused."""
+    changes = []
+    for key in sorted(set(before.get("env", {})) | set(now.get("env", {}))):
+        old, new = before.get("env", {}).get(key), now.get("env", {}).get(key)
+        if old != new:
+            changes.append(f"{key} {old} -> {new}")
+    old_args, new_args = before.get("command", []), now.get("command", [])
+    gone = [a for a in old_args if a not in new_args]
+    added = [a for a in new_args if a not in old_args]
+    if gone or added:
+        changes.append(f"arguments {' '.join(gone) or '-'} -> {' '.join(added) or '-'}")
+    if before.get("data") != now.get("data"):
+        changes.append("the data it trained on")
+    return "; ".join(changes) or "the request's format"
+
+
 def train(
     config: Path,
     data: Path,
@@ -204,6 +221,13 @@ def train(
         done = json.loads(stamp.read_text())
         if done.get("request") == request:
             return {**done["trained"], "dir": train_dir, "reused": True}
+        # a finished training is replaced: say why, since an unset OMP_NUM_THREADS alone retrains it
+        change = request_change(done.get("request", {}), request)
+        print(
+            f"retraining {train_dir} (its finished training differs: {change})",
+            file=sys.stderr,
+            flush=True,
+        )
     stamp.unlink(missing_ok=True)
     if train_dir.exists():  # lerobot-train refuses an existing output folder
         shutil.rmtree(train_dir)
