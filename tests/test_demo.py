@@ -50,7 +50,7 @@ def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeyp
         (tmp_path / folder).symlink_to(root / folder)
     monkeypatch.chdir(tmp_path)
     loop = learning_loop(cuda=False, reference_s=1.0)
-    assert loop.config == "act_lift_peg_upright_rgb_cpu" and "min on 2 CPU cores" in loop.published
+    assert loop.config == "act_lift_peg_upright_rgb_96_cpu" and "min on 2 CPU cores" in loop.published
     assert "min of training here" in loop.minutes  # scaled by the reference workload
     lines = loop.lines()
     assert any(
