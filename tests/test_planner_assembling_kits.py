@@ -230,7 +230,7 @@ def test_the_expert_bench_reads_the_shapes_yaw_in_the_hand_as_the_narrowest_gras
     from bench.expert_assembling_kits import run_seeds
     from kitbench.kits import shape_geometry
 
-    (episode,) = run_seeds(([6], "pd_joint_pos", "panda_wristcam", {"prefer_narrowest": True}))
+    (episode,) = run_seeds(([6], "pd_joint_pos", "panda_wristcam", {"prefer_narrowest": True}, None))
     assert episode.success and episode.grip is not None
     grip, period = episode.grip
     shape = shape_geometry(episode.shape_id)
