@@ -130,3 +130,17 @@ def test_a_finished_training_is_replaced_only_with_a_line_saying_what_changed(tm
     said = capsys.readouterr().err.strip().splitlines()
     change = "OMP_NUM_THREADS 2 -> 1; arguments --seed=1000 -> --seed=2000"
     assert said == [f"retraining {policy_dir / 'train'} (its finished training differs: {change})"]
+
+
+def test_an_unpublished_config_trains_on_the_threads_its_kind_was_measured_fastest_on(monkeypatch):
+    from kitbench.training import run
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(run.os, "cpu_count", lambda: 2)
+    policies = ROOT / "policies"
+    # cameras: two torch threads beside the one loader worker; the state: one thread beside two workers
+    assert run.train_threads(policies / "act_lift_peg_upright_rgb_96_cpu.json") == "2"
+    assert run.train_threads(policies / "act_lift_peg_upright_state.json") == "1"
+    assert run.train_threads(policies / "act_lift_peg_upright_state.json", published_threads=3) == "3"
+    monkeypatch.setenv("OMP_NUM_THREADS", "4")
+    assert run.train_threads(policies / "act_lift_peg_upright_rgb_96_cpu.json", published_threads=2) == "4"
