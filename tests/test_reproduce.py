@@ -141,6 +141,8 @@ def test_an_unpublished_config_trains_on_the_threads_its_kind_was_measured_faste
     # cameras: two torch threads beside the one loader worker; the state: one thread beside two workers
     assert run.train_threads(policies / "act_lift_peg_upright_rgb_96_cpu.json") == "2"
     assert run.train_threads(policies / "act_lift_peg_upright_state.json") == "1"
+    monkeypatch.setattr(run.os, "cpu_count", lambda: 16)  # a GPU's config leaves the cores to its 8 loader workers
+    assert run.train_threads(policies / "act_lift_peg_upright_rgb.json") == "8"
     assert run.train_threads(policies / "act_lift_peg_upright_state.json", published_threads=3) == "3"
     monkeypatch.setenv("OMP_NUM_THREADS", "4")
     assert run.train_threads(policies / "act_lift_peg_upright_rgb_96_cpu.json", published_threads=2) == "4"

@@ -133,16 +133,17 @@ class TrainingProgress:
 
 def train_threads(config_path: Path, published_threads: int | None = None) -> str:
     """torch's threads for lerobot-train: OMP_NUM_THREADS if set, else the published run's, else every core for a
-    config that reads cameras (its update takes a third of a second or more, a loader worker a millisecond a sample:
-    docs/training.md), and for a state config the cores its loader workers leave (at least one): on a few cores
-    torch's threads otherwise fight the workers."""
+    config that reads cameras on the CPU (its update takes a third of a second or more, a loader worker a millisecond
+    a sample: docs/training.md), and otherwise the cores its loader workers leave (at least one): on a few cores
+    torch's threads otherwise fight the workers, and a GPU's loader workers need the cores."""
     if os.environ.get(THREADS_VAR):
         return os.environ[THREADS_VAR]
     if published_threads is not None:
         return str(published_threads)
     config = json.loads(Path(config_path).read_text())
     cores = os.cpu_count() or 1
-    if (config.get("env") or {}).get("obs_type", "state") != "state":
+    on_cpu = (config.get("policy") or {}).get("device") == "cpu"
+    if on_cpu and (config.get("env") or {}).get("obs_type", "state") != "state":
         return str(cores)
     return str(max(1, cores - int(config.get("num_workers", 4))))
 
