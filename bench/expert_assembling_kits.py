@@ -28,7 +28,7 @@ import numpy as np
 
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.geometry import planar_yaw, quat_to_matrix
-from kitbench.kits import SHAPE_NAMES
+from kitbench.kits import SHAPE_NAMES, shape_geometry
 from kitbench.planning.assembling_kits import AssemblingKitsPlanner, grip_period
 from kitbench.policies.joint_targets import joint_target_to_action
 
@@ -193,11 +193,10 @@ def misread_report(rows: list[tuple[tuple[float, float], list[Episode]]], contro
         f"AssemblingKits-v1 expert ({control_mode}) reading its slot wrong, the same seeds each row",
         "slot off (mm, deg)  success              95% interval   turned shapes  failures",
     ]
-    any_turn = {SHAPE_NAMES.index("disc"), SHAPE_NAMES.index("ring")}
     for (mm, deg), episodes in rows:
         n, k = len(episodes), sum(e.success for e in episodes)
         low, high = wilson_interval(k, n)
-        turned = [e for e in episodes if e.shape_id not in any_turn]
+        turned = [e for e in episodes if shape_geometry(e.shape_id).symmetry > 0]  # not a disc or ring: yaw matters
         turned_k = sum(e.success for e in turned)
         failures = collections.Counter(e.category for e in episodes if not e.success)
         named = ", ".join(f"{c} {v}" for c, v in failures.most_common()) or "-"
