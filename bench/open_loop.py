@@ -171,7 +171,7 @@ def print_table(rows: list[dict]) -> None:
             f"{r['phase']:<10} {r['frames']:>6}  {h[0]:6.2f} / {h[1]:6.2f}  {v[0]:5.2f} / {v[1]:5.2f}  "
             f"{r['rotation_deg']:7.2f}  {r['gripper_diff']:7.3f}  {r['expert_step_mm']:14.2f}"
         )
-    print("(median / p90; gripper: the median difference of the two commands, -1 open .. 1 closed)")
+    print("(median / p90; gripper: the median difference of the two commands, -1 closed .. 1 open)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,3 +36,16 @@ def report_in_one_line(program: str) -> None:
             previous(kind, value, traceback)
 
     sys.excepthook = hook
+
+
+def check_vector(name: str, value: object, size: int):
+    """`value` as a float64 vector of `size` finite numbers, or one line saying what is wrong with it."""
+    import numpy as np
+
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise KitbenchError(f"{name} must be {size} numbers, got {value!r}") from None
+    if v.shape != (size,) or not np.isfinite(v).all():
+        raise KitbenchError(f"{name} must be {size} finite numbers, got {value!r}")
+    return v

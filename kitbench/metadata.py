@@ -32,6 +32,9 @@ CARRIER = "episode_seed"
 NOT_CARRIED = ("seed",)
 # 1: files written before the format was numbered (they read the same); 2: numbered.
 FORMAT = 2
+# What an action means and how the scene answers it: ManiSkill 3.0.1's (its gripper +1 opens; its Panda's drive
+# gains and default material: docs/fidelity.md). A recording without one was made before (`action_convention`).
+ACTION_CONVENTION = "maniskill-3.0.1"
 # The settings a resumed recording must share with its first part (and shards with each other): episodes are
 # reproducible from their seed only under the same settings and the same kitbench (its physics and assets).
 IDENTITY = (
@@ -54,6 +57,7 @@ IDENTITY = (
     "expert_options",
     "source",
     "kitbench_version",
+    "action_convention",
 )
 
 
@@ -81,6 +85,8 @@ class RecordingInfo:
     expert_options: dict[str, Any] | None = None  # the expert's config fields a recording replaced (close_steps=6)
     source: str | None = None  # the recording a conversion re-simulated
     kitbench_version: str | None = None  # None: made before 0.2.0
+    # None: made before ACTION_CONVENTION (gripper +1 closed; stiffer arm drives, a grippier peg)
+    action_convention: str | None = None
     repo_id: str | None = None
     fps: int | None = None
     seeds: list[int] | None = None  # the episodes' seeds when not consecutive (`kitbench eval --save-dataset`)
@@ -129,6 +135,18 @@ class RecordingInfo:
             ) from None
         return info.holding(seeds)
 
+    def require_current(self, root: str | Path) -> RecordingInfo:
+        """These settings, unless the recording's actions mean something else here (`ACTION_CONVENTION`): then one
+        line naming `kitbench convert` as the remedy."""
+        if self.action_convention != ACTION_CONVENTION:
+            made = f"kitbench's earlier one ({self.kitbench_version or 'before 0.2.0'}: gripper +1 closed)"
+            raise KitbenchError(
+                f"{root} was recorded in {made if self.action_convention is None else self.action_convention!r}, "
+                f"not ManiSkill's ({ACTION_CONVENTION}: gripper +1 opens, its dynamics); migrate it with "
+                f"kitbench convert {root} --out NEW_FOLDER"
+            )
+        return self
+
     @classmethod
     def require(cls, root: str | Path, what: str = "") -> RecordingInfo:
         info = cls.read(root)
@@ -148,6 +166,7 @@ class RecordingInfo:
             "label",
             "expert_options",
             "source",
+            "action_convention",
             "repo_id",
             "fps",
             "seeds",
@@ -246,6 +265,7 @@ _SETTING_TYPES: dict[str, tuple[type, ...]] = {
     "expert_options": (dict, _NONE),
     "source": (str, _NONE),
     "kitbench_version": (str, _NONE),
+    "action_convention": (str, _NONE),
     "repo_id": (str, _NONE),
     "fps": (int, _NONE),
     "seeds": (list, _NONE),

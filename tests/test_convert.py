@@ -117,6 +117,7 @@ def swap_seeds(root: Path) -> None:
     """Swap the first two episodes' seeds everywhere a recording keeps them (its data's `episode_seed` column, its
     episode file, the digest written with it), as a recorder that mixed them up would have written them."""
     import pyarrow as pa
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     from kitbench.metadata import RecordingInfo
@@ -159,6 +160,7 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
 def freeze_episode(root: Path, index: int) -> None:
     """Make episode `index`'s executed actions all its first one (the arm holds still where its expert moved), as
     a source whose actions were damaged would hold them: its replay leaves the peg where it lay."""
+    import pyarrow as pa
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -266,3 +268,56 @@ def test_bad_input_is_one_line_and_writes_nothing(joint_delta_source, tmp_path, 
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and needle in run.stderr, run.stderr
     assert not (tmp_path / "dst").exists()
     assert sorted(p.name for p in joint_delta_source.rglob("*")) == before
+
+
+def _as_recorded_before_the_convention(source: Path, old: Path) -> Path:
+    """A copy of `source` as kitbench wrote it before it took ManiSkill's convention: no `action_convention` and
+    the gripper's sign the other way round in every action column (the simulation's outcome is the same)."""
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from kitbench.metadata import CARRIER, INFO_FILE, RECORDING_FILE, RecordingInfo
+
+    shutil.copytree(source, old)
+    for path in (old / "data").rglob("*.parquet"):
+        table = pq.read_table(path)
+        for name in ("action", "executed_action"):
+            rows = np.stack(table.column(name).to_numpy(zero_copy_only=False)).copy()
+            rows[:, 7] = -rows[:, 7]  # pd_joint_delta_pos on the Panda: 7 joints, then the gripper
+            column = table.schema.get_field_index(name)
+            field = table.schema.field(name)
+            table = table.set_column(column, field, pa.array(rows.tolist(), type=field.type))
+        pq.write_table(table, path)
+    info_file = old / INFO_FILE
+    lerobot = json.loads(info_file.read_text())
+    del lerobot["features"][CARRIER]["info"]["kitbench"]["action_convention"]
+    info_file.write_text(json.dumps(lerobot, indent=4))
+    settings = json.loads((old / RECORDING_FILE).read_text())
+    del settings["action_convention"]
+    RecordingInfo.from_json(settings).write(old)
+    return old
+
+
+def test_a_recording_made_before_the_convention_is_refused_or_migrated(joint_delta_source, tmp_path):
+    """Eval's replay, merge and a trained policy's dataset refuse it in one line naming `kitbench convert`, and
+    `kitbench convert` migrates it: the same episodes, its gripper commands turned to ManiSkill's sign."""
+    from kitbench.errors import KitbenchError
+    from kitbench.policies.replay import ReplayPolicy
+    from kitbench.recording.merge import merge
+
+    old = _as_recorded_before_the_convention(joint_delta_source, tmp_path / "old")
+    with pytest.raises(KitbenchError, match=r"gripper \+1 closed.*kitbench convert") as caught:
+        ReplayPolicy(str(old))
+    assert "\n" not in str(caught.value)
+    with pytest.raises(KitbenchError, match="kitbench convert"):
+        merge([old, joint_delta_source], tmp_path / "merged")
+    assert not (tmp_path / "merged").exists()
+    migrated = tmp_path / "migrated"
+    summary = record(convert_config(old, migrated), progress=False)
+    assert summary.stored == 3 and summary.rejected == 0
+    a, src = _columns(migrated), _columns(joint_delta_source)
+    for name in COLUMNS:
+        np.testing.assert_array_equal(a[name], src[name], err_msg=name)
+    assert json.loads((migrated / "meta/kitbench_recording.json").read_text())["action_convention"] == "maniskill-3.0.1"

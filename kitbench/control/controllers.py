@@ -1,4 +1,4 @@
-"""The control modes. Each maps an action (last entry: gripper, -1 open .. 1 closed) to arm joint targets.
+"""The control modes. Each maps an action (last entry: gripper, -1 closed .. 1 open) to arm joint targets.
 
 End-effector modes solve IK with mink on the MuJoCo twin of the simulated Panda. Poses are in the robot's
 base frame (x forward, z up, origin at the base); rotations are axis-angle vectors.

@@ -33,7 +33,7 @@ from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, POINTCLOUD, REWARD_M
 from kitbench.envs.observations import flatten_state, pose7, space_for
 from kitbench.envs.pointcloud import fuse_cameras
 from kitbench.envs.segmentation import SEGMENTATION_FIXED, segmentation_lut
-from kitbench.errors import KitbenchError, check_choice
+from kitbench.errors import KitbenchError, check_choice, check_vector
 from kitbench.perturbations import Perturbations
 from kitbench.robots import ROBOTS, Robot, RobotSpec
 from kitbench.robots.robot import GROUND_FREE_BIT
@@ -306,6 +306,8 @@ class TabletopEnv(gym.Env, abc.ABC):
         ready = np.asarray(self._robot_spec.ready_arm_qpos)
         noise = rng.normal(0.0, self.robot_init_qpos_noise, len(ready)) if self.robot_init_qpos_noise > 0 else 0.0
         arm_qpos = self.perturbations.initial_qpos(ready + noise)
+        if "arm_qpos" in options:  # a given start (another simulator's): the seed's draws are still made
+            arm_qpos = check_vector("options['arm_qpos']", options["arm_qpos"], len(ready))
         self._build_world()
         self.robot.reset(arm_qpos)
         self.controller.reset(arm_qpos)
@@ -433,7 +435,7 @@ class TabletopEnv(gym.Env, abc.ABC):
 
     def action_to_sim(self, action: np.ndarray) -> np.ndarray:
         """An action in the robot's units (`RobotSpec.units`, the action space's) to the simulation's: arm joints
-        in radians, the gripper a command from -1 (open) to 1 (closed). The identity for SI robots."""
+        in radians, the gripper a command from -1 (closed) to 1 (open). The identity for SI robots."""
         spec = self._robot_spec
         return spec.units.action_to_sim(spec, self.control_mode, self._n_arm, action)
 

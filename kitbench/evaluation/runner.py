@@ -282,7 +282,7 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
     import shlex
 
     import kitbench
-    from kitbench.metadata import RecordingInfo, expert_options
+    from kitbench.metadata import ACTION_CONVENTION, RecordingInfo, expert_options
     from kitbench.recording.features import dataset_features
     from kitbench.recording.session import RecordingSession
 
@@ -318,6 +318,7 @@ def _write_dataset(config: EvalConfig, suite: Suite, episodes: list) -> None:
         camera_size=suite.camera_size if cameras else None,
         camera_view=suite.camera_view if cameras else None,
         kitbench_version=kitbench.__version__,
+        action_convention=ACTION_CONVENTION,
         repo_id=f"kitbench/{suite.task}",
         fps=fps,
         made_by=shlex.join(["kitbench", "eval", *flags, "--save-dataset", "<folder>"]),

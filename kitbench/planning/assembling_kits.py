@@ -60,7 +60,7 @@ from kitbench.kits import shape_geometry
 from kitbench.kits.fingers import CLEAR_ENOUGH, Pad, fingertip_clearance, pick_obstacles, seated_outlines
 from kitbench.kits.shapes import grasp_width_at, place
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import PhasePlanner
+from kitbench.planning.planner import DRIVE_LEAD, PhasePlanner
 from kitbench.planning.poses import HAND_DOWN, make_pose, rot_z
 from kitbench.tasks.assembling_kits import yaw_error
 
@@ -135,8 +135,9 @@ class AssemblingKitsPlannerConfig:
     # None: fully shut.
     grip_squeeze: float | None = 0.005
     speed_factor: float = 1.0
+    drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag
     max_opening: float = 0.07  # m, the widest grasp the planner uses (the Panda opens 8 cm)
-    open_command: float = OPEN  # the gripper command of an open hand (-1: fully open)
+    open_command: float = OPEN  # the gripper command of an open hand (1: fully open)
     # Whether the planner counts the hand's turn by the arm's swing about its base against the wrist's limits: a
     # five-joint arm's downward hand turns with its shoulder pan one to one (the Panda's seven joints share it).
     wrist_follows_pan: bool = False
@@ -187,7 +188,7 @@ SO101_CONFIG = AssemblingKitsPlannerConfig(
     close_steps=5,
     speed_factor=0.5,
     max_opening=0.05,
-    open_command=-0.2,
+    open_command=0.2,
     wrist_follows_pan=True,
     joint7_margin=0.25,
     aim_by_command=True,
@@ -485,15 +486,15 @@ class AssemblingKitsPlanner(PhasePlanner):
         return steps + self._plan_approach(steps[-1])
 
     def _grip_command(self) -> float:
-        """The gripper command (-1 open .. 1 closed) that drives the fingers `grip_squeeze` past where they hold the
+        """The gripper command (-1 closed .. 1 open) that drives the fingers `grip_squeeze` past where they hold the
         shape now."""
         if self.cfg.grip_squeeze is None:
             return CLOSED
         spec = self.env.robot_spec
         # one finger joint's position: half a parallel gripper's opening, or a single jaw's angle
         target = self.env.robot.gripper_opening() / len(spec.finger_joints) - self.cfg.grip_squeeze
-        fraction = (target - spec.finger_open) / (spec.finger_closed - spec.finger_open)
-        return float(np.clip(2.0 * fraction - 1.0, OPEN, CLOSED))
+        fraction = (target - spec.finger_closed) / (spec.finger_open - spec.finger_closed)
+        return float(np.clip(2.0 * fraction - 1.0, CLOSED, OPEN))
 
     def _carry_z(self, obj: np.ndarray, tcp: np.ndarray) -> float:
         """TCP height that carries the shape's bottom `carry_clearance` above the board top."""

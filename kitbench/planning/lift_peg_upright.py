@@ -34,7 +34,7 @@ import numpy as np
 from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import PhasePlanner, check_spread, drawn_within
+from kitbench.planning.planner import DRIVE_LEAD, PhasePlanner, check_spread, drawn_within
 from kitbench.planning.poses import (
     HAND_DOWN,
     cubic_bezier,
@@ -67,6 +67,7 @@ class PlannerConfig:
     # only the table ends it, as a learned swing that ends too high needs (docs/learnability.md)
     set_down_clearance_spread: float = 0.0
     speed_factor: float = 1.0  # fraction of the Panda's joint velocity and acceleration limits plans may use
+    drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag
     close_steps: int = 1  # gripper closing before the grasp is checked (the fingers close in one step)
     settle_steps: int = 1  # hold at the end of the swing before measuring the peg
     max_grasp_attempts: int = 2

@@ -49,7 +49,7 @@ import numpy as np
 
 from kitbench.geometry import axis_angle_to_matrix, tilt_from_vertical
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import PhasePlanner
+from kitbench.planning.planner import DRIVE_LEAD, PhasePlanner
 from kitbench.planning.poses import interpolate_pose, make_pose, rot_y, rot_z, upright_correction
 from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
 
@@ -70,6 +70,7 @@ class PlannerConfig:
     swing_lift: float = 0.02  # extra clearance of the peg's far end mid-swing, m
     set_down_clearance: float = 0.004  # far end above the table at the end of the swing, m
     speed_factor: float = 1.0  # fraction of Fetch's joint velocity and acceleration limits plans may use
+    drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag
     height_tolerance: float = 0.003  # place: re-aim when the peg's centre is further than this from its goal, m
     tilt_tolerance: float = 0.03  # place: or when it leans more than this, rad (success allows 0.08)
     close_steps: int = 2  # the fingers travel 0.1 -> 0.053 m in the first step and touch the peg in the second

@@ -28,7 +28,7 @@ import numpy as np
 from kitbench.geometry import tilt_from_vertical
 from kitbench.planning.ik import TimedPath
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import PhasePlanner, check_spread, drawn_within
+from kitbench.planning.planner import DRIVE_LEAD, PhasePlanner, check_spread, drawn_within
 from kitbench.planning.poses import cubic_bezier, interpolate_pose, make_pose, smoothstep, upright_correction
 from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH, PEG_HALF_WIDTH
 
@@ -56,9 +56,10 @@ class PlannerConfig:
     # only the table ends it, as a learned swing that ends too high needs (docs/learnability.md)
     set_down_clearance_spread: float = 0.0
     speed_factor: float = 0.5  # fraction of the servos' no-load speed and acceleration plans may use
-    # the jaw's command while open (-1 fully, 100 degrees; 1 closed): wide open, the jaw's heel reaches the table
-    # beside a low grasp; at -0.2 (gripper.pos 60, 56 degrees) it clears the 2.5 cm peg by 2 cm at the pads
-    open_command: float = -0.2
+    drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag
+    # the jaw's command while open (1 fully, 100 degrees; -1 closed): wide open, the jaw's heel reaches the table
+    # beside a low grasp; at 0.2 (gripper.pos 60, 56 degrees) it clears the 2.5 cm peg by 2 cm at the pads
+    open_command: float = 0.2
     close_steps: int = 3  # ~2 steps to close on the peg from open_command
     settle_steps: int = 1
     max_grasp_attempts: int = 2

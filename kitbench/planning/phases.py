@@ -13,8 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kitbench.planning.ik import TimedPath
-
-OPEN, CLOSED = -1.0, 1.0  # gripper commands of a `pd_joint_pos` action
+from kitbench.robots.spec import CLOSED, OPEN
 
 
 @dataclass

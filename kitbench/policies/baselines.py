@@ -7,6 +7,7 @@ import numpy as np
 from kitbench.envs.interface import as_kitbench
 from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.policies.registry import policy_source
+from kitbench.robots.spec import OPEN
 
 
 class RandomPolicy:
@@ -35,7 +36,7 @@ class ZeroPolicy:
 
     def act(self, obs):
         controller = self._env.controller
-        return joint_target_to_action(self._env, controller.joint_target, -1.0)
+        return joint_target_to_action(self._env, controller.joint_target, OPEN)
 
 
 @policy_source("random")

@@ -16,7 +16,7 @@ from kitbench.geometry import matrix_to_axis_angle
 
 def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bool = True) -> np.ndarray:
     """The env's action (in the robot's units) that drives the arm to `arm_target` (joint positions, radians) with
-    the gripper at `gripper` (a command, -1 open .. 1 closed), clipped to the action box unless `clip` is False
+    the gripper at `gripper` (a command, -1 closed .. 1 open), clipped to the action box unless `clip` is False
     (then it says how far outside the box the target lies)."""
     u = as_kitbench(env)
     mode = u.control_mode

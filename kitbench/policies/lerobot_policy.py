@@ -65,6 +65,7 @@ def trained_settings(checkpoint: Path, keys: tuple[str, ...]) -> dict[str, Any]:
     if root:
         recording = RecordingInfo.read(root)
         if recording is not None:
+            recording.require_current(root)  # a policy trained on another convention's actions acts otherwise here
             return {key: recording.robot_uid if key == "robot" else getattr(recording, key) for key in keys}
     env = train.get("env") or {}
     return {key: env.get(key) for key in keys} if env.get("type") == "kitbench" else unknown

@@ -48,6 +48,8 @@ class ReplayPolicy:
         import kitbench
 
         info = RecordingInfo.read(self.root)
+        if info is not None:
+            info.require_current(self.root)
         if info is not None and info.kitbench_version != kitbench.__version__:
             warnings.warn(
                 f"{self.root} was recorded with kitbench {info.kitbench_version or 'before 0.2.0'}, this is "

@@ -17,7 +17,7 @@ from kitbench.env_settings import EnvSettings
 from kitbench.envs.modes import camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError
-from kitbench.metadata import RECORDING_FILE, RecordingInfo, expert_options
+from kitbench.metadata import ACTION_CONVENTION, RECORDING_FILE, RecordingInfo, expert_options
 from kitbench.policies.lerobot_policy import parse_option
 from kitbench.recording.features import RGB_STORAGES
 from kitbench.recording.layout import RETIRED_SUFFIX, SHARDS_DIR, beside, journal_root, last_commit
@@ -191,6 +191,7 @@ class RecordConfig:
             expert_options=expert_options(self.policy.policy, self.policy.policy_options),
             source=None if self.source is None else str(self.source),
             kitbench_version=kitbench.__version__,
+            action_convention=ACTION_CONVENTION,
             repo_id=self.dataset_repo_id,
             **more,
         )
@@ -353,6 +354,8 @@ def _saved_settings(out: Path) -> list[RecordingInfo]:
 
         check_dataset(folder)
     committed = RecordingInfo.read(folder) if folder is not None else None
+    if committed is not None:
+        committed.require_current(out)
     return [info for info in (committed, EpisodeJournal(out).settings()) if info is not None]
 
 

@@ -27,6 +27,7 @@ from kitbench.errors import KitbenchError
 from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.recording.config import RecordConfig
 from kitbench.recording.source import SourceRecording
+from kitbench.robots.spec import OPEN
 
 # Largest distance (m) between an object's position in the converted episode and the object's path in the source
 # (`path_gap`). The same control mode reproduces the source exactly (0 m), and so do absolute joint targets from
@@ -80,7 +81,7 @@ class SourceReplay:
             self.shadow.reset(seed=seed)
 
     def _hold(self) -> np.ndarray:
-        return joint_target_to_action(self.env, self.env.controller.joint_target, -1.0)
+        return joint_target_to_action(self.env, self.env.controller.joint_target, OPEN)
 
     def act(self, obs) -> np.ndarray:
         executed, self.label, final = self._next()

@@ -65,7 +65,7 @@ def _read_shard(root: Path, finished: bool) -> Shard:
     if finished and (journal_root(root).is_dir() or beside(root, SESSION_SUFFIX).exists()):
         raise KitbenchError(f"shard {root} is an unfinished recording; finish it with kitbench record --resume")
     check_dataset(root)
-    info = RecordingInfo.require(root, f"shard {root}")
+    info = RecordingInfo.require(root, f"shard {root}").require_current(root)
     episodes = read_episodes(root)
     if not episodes:
         raise KitbenchError(f"shard {root} has no episodes")

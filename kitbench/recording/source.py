@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.metadata import RecordingInfo, read_columns, read_episodes
+from kitbench.metadata import ACTION_CONVENTION, RecordingInfo, read_columns, read_episodes
+from kitbench.robots import ROBOTS
 
 
 class SourceRecording:
@@ -37,9 +38,20 @@ class SourceRecording:
         for episode in self.episodes:
             group = by_index[episode.episode_index]
             by_seed[int(episode.seed)] = {
-                "executed": np.stack(group["executed_action"].to_numpy()).astype(np.float32),
-                "action": np.stack(group["action"].to_numpy()).astype(np.float32),
+                "executed": self._migrated(np.stack(group["executed_action"].to_numpy()).astype(np.float32)),
+                "action": self._migrated(np.stack(group["action"].to_numpy()).astype(np.float32)),
                 "environment_state": np.stack(group["observation.environment_state"].to_numpy()),
                 "success": bool(episode.success),
             }
         return by_seed
+
+    def _migrated(self, actions: np.ndarray) -> np.ndarray:
+        """Actions in ManiSkill's convention (`ACTION_CONVENTION`): a recording made before it commanded its gripper
+        with the opposite sign (+1 closed), or in percent the same way round (100 open)."""
+        if self.info.action_convention == ACTION_CONVENTION:
+            return actions
+        spec = ROBOTS[self.info.robot_uid]
+        gripper = actions.shape[1] - 1 - len(spec.extra_action_names)
+        if not spec.units.gripper_percent:  # a jaw in percent always meant 0 closed .. 100 open
+            actions[:, gripper] = -actions[:, gripper]
+        return actions

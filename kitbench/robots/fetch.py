@@ -110,8 +110,6 @@ FETCH = RobotSpec(
     body_ready=BODY_READY,
     base_joints=BASE_JOINTS,
     cameras=(HEAD_CAMERA, HAND_CAMERA),
-    arm_stiffness=1e4,
-    arm_damping=5e2,
     self_collision_ignored=SELF_COLLISION_IGNORED,
     ground_free_links=GROUND_FREE_LINKS,
     # the reference's visual meshes (DAE, 9 MB) cost rgb observations 4x: 8 steps/s with them, 28-33 decimated

@@ -3,8 +3,8 @@ in a scene), `ArmKinematics` (its MuJoCo twin for IK) and the env read. A robot 
 `kitbench/robots/` that builds its specs; nothing else in kitbench names a robot's joints or links.
 
 Action layout, whatever the robot: `[arm part (the control mode's), gripper, body joints..., base...]`: the arm
-part is the control mode's (one value per arm joint, 3 or 6 TCP values), the gripper one value (-1 open .. 1
-closed), then one delta per body joint (a head, a torso: position-driven joints outside the arm,
+part is the control mode's (one value per arm joint, 3 or 6 TCP values), the gripper one value (-1 closed .. 1
+open, ManiSkill's), then one delta per body joint (a head, a torso: position-driven joints outside the arm,
 +-`body_action_bound` a step) and, for a mobile base, its forward velocity and yaw rate. A Panda has neither body
 joints nor a base. A robot whose `units` are a real arm's shows its joints and gripper in those
 (`kitbench.robots.units`); the simulation converts at the env's boundary.
@@ -20,6 +20,9 @@ import numpy as np
 
 from kitbench.robots.units import SI, JointUnits
 from kitbench.sim.cameras import CameraSpec
+
+# The gripper command of every robot's action, ManiSkill's convention: +1 opens, -1 closes.
+OPEN, CLOSED = 1.0, -1.0
 
 
 @dataclass(frozen=True)
@@ -65,8 +68,8 @@ class RobotSpec:
     tcp_offset: tuple[tuple[float, float, float], tuple[float, float, float, float]]
     base_link: str  # the frame arm poses are expressed in (moves with a mobile base)
     ready_arm_qpos: tuple[float, ...]  # the arm at reset, before the task's noise
-    finger_open: float  # finger joint target of an open gripper (action -1)
-    finger_closed: float  # of a closed one (action 1), past the fingers' limit so a closed hand keeps squeezing
+    finger_open: float  # finger joint target of an open gripper (action 1)
+    finger_closed: float  # of a closed one (action -1), past the fingers' limit so a closed hand keeps squeezing
     base_pose: tuple[tuple[float, float, float], tuple[float, float, float, float]]  # where it stands (world)
     arm_velocity_limits: tuple[float, ...]  # rad/s: IK steps and the experts' timing stay within them
     arm_acceleration_limits: tuple[float, ...]  # rad/s^2
@@ -90,17 +93,17 @@ class RobotSpec:
     # IK's weight on the TCP's orientation against its position (1): an arm with fewer than six joints reaches
     # the position and as much of the orientation as it can with a low one.
     orientation_cost: float = 0.5
-    # Critically damped on the Panda's heaviest joint: 0.1 rad steps settle in ~0.1 s with < 1% overshoot, where
-    # the reference gains (1e3, 1e2) reach only a quarter of a step within one 50 ms control period.
-    arm_stiffness: float = 1e4
-    arm_damping: float = 5e2
+    # ManiSkill's Panda and Fetch gains: the same joint targets move an object as they do there (stiffer drives,
+    # 1e4 and 5e2, turned a grasped peg ~10 degrees further: docs/fidelity.md).
+    arm_stiffness: float = 1e3
+    arm_damping: float = 1e2
     arm_force_limit: float = 100.0
     gripper_stiffness: float = 1e3
     gripper_damping: float = 1e2
     gripper_force_limit: float = 100.0
-    body_stiffness: float = 1e4
-    body_damping: float = 1e3
-    body_force_limit: float = 1000.0
+    body_stiffness: float = 1e3  # ManiSkill's Fetch body drives
+    body_damping: float = 1e2
+    body_force_limit: float = 100.0
     # The base joints follow a target that the velocity action integrates: stiff, so that a zero action holds the
     # base where it is against the arm's reaction forces, and damped to the velocity target.
     base_stiffness: float = 1e6
@@ -126,9 +129,10 @@ class RobotSpec:
         return bool(self.base_joints)
 
     def gripper_target(self, action: float) -> float:
-        """Gripper command in [-1, 1] (-1 open, 1 closed) to the finger joint target."""
+        """Gripper command in [-1, 1] (-1 closed, 1 open: ManiSkill's) to the finger joint target, linear between
+        `finger_closed` and `finger_open` as ManiSkill's gripper controller maps it."""
         a = min(1.0, max(-1.0, float(action)))
-        return self.finger_open + (a + 1.0) * 0.5 * (self.finger_closed - self.finger_open)
+        return self.finger_closed + (a + 1.0) * 0.5 * (self.finger_open - self.finger_closed)
 
     @property
     def extra_action_names(self) -> list[str]:

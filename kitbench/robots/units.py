@@ -1,6 +1,6 @@
 """`JointUnits`: how a robot's actions and LeRobot `observation.state` express its joints and gripper.
 
-Inside the simulation joints are radians and the gripper action is a command from -1 (open) to 1 (closed)
+Inside the simulation joints are radians and the gripper action is a command from -1 (closed) to 1 (open)
 (`kitbench.robots.spec`). `SI` shows them so. `SO_FOLLOWER` shows them as LeRobot's SO follower reports a real
 SO-100/SO-101 (`lerobot/robots/so_follower`, `use_degrees`): the body joints in degrees, the jaw's position from
 0 to 100 over its range (LeRobot's `RANGE_0_100`), each named `<motor>.pos`, so that a recording has the real
@@ -79,8 +79,8 @@ class JointUnits:
         out = np.array(action, dtype=np.float64)
         if mode in JOINT_MODES:
             out[:n_arm] /= self.per_radian
-        if self.gripper_percent:  # 0..100 spans the command's closed (1) .. open (-1): the jaw's range is both's
-            out[n_arm] = 1.0 - out[n_arm] / 50.0
+        if self.gripper_percent:  # 0..100 spans the command's closed (-1) .. open (1): the jaw's range is both's
+            out[n_arm] = out[n_arm] / 50.0 - 1.0
         return out
 
     def action_from_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
@@ -91,7 +91,7 @@ class JointUnits:
         if mode in JOINT_MODES:
             out[:n_arm] *= self.per_radian
         if self.gripper_percent:  # unclipped: a caller may ask how far out of the box an action lies
-            out[n_arm] = 50.0 * (1.0 - out[n_arm])
+            out[n_arm] = 50.0 * (out[n_arm] + 1.0)
         return out.astype(np.asarray(action).dtype)
 
     def action_bounds(self, spec: RobotSpec, mode: str, n_arm: int, low, high) -> tuple[np.ndarray, np.ndarray]:

@@ -34,6 +34,8 @@ class SimConfig:
     # AssemblingKits expert dropped 118 of 500 shapes); its artefacts on small pieces are handled by the kit's
     # own contact offset (envs/assembling_kits.py, docs/kit-physics.md).
     enable_pcm: bool = True
+    # The material of every shape that names none (ManiSkill's defaults: static and dynamic friction, restitution).
+    default_material: tuple[float, float, float] = (0.3, 0.3, 0.0)
     # 0: no body ever sleeps. PhysX skips sleeping bodies, which makes a resting scene step ~8x faster but lets
     # results depend on when a body fell asleep and woke; every body is simulated every substep by default.
     sleep_threshold: float = 0.0
@@ -57,6 +59,7 @@ def create_scene(config: SimConfig, render: bool) -> sapien.Scene:
     scene_config.enable_tgs = True
     scene_config.enable_enhanced_determinism = True
     physx.set_scene_config(scene_config)
+    physx.set_default_material(*config.default_material)
     physx.set_shape_config(contact_offset=config.contact_offset, rest_offset=config.rest_offset)
     physx.set_body_config(
         solver_position_iterations=config.solver_position_iterations,

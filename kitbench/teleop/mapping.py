@@ -25,8 +25,9 @@ from kitbench.control.controllers import TARGET_DELTA_MODES, pose_to_ee_action
 from kitbench.envs.interface import KitbenchEnv
 from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+from kitbench.robots.spec import CLOSED, OPEN
 
-# (env, arm joint targets in radians, gripper command -1 open .. 1 closed) -> the env's action in its mode; the
+# (env, arm joint targets in radians, gripper command -1 closed .. 1 open) -> the env's action in its mode; the
 # policies' `joint_target_to_action`, handed in so that this package stays below the policies
 JointAction = Callable[[KitbenchEnv, np.ndarray, float], np.ndarray]
 
@@ -35,7 +36,6 @@ DELTA_KEYS = ("delta_x", "delta_y", "delta_z")
 PHONE_KEYS = ("phone.pos", "phone.rot", "phone.raw_inputs", "phone.enabled")
 # lerobot's discrete gripper classes (`GamepadTeleop.GripperAction`): 0 close, 1 stay, 2 open
 GRIPPER_CLOSE, GRIPPER_OPEN = 0.5, 1.5
-OPEN, CLOSED = -1.0, 1.0  # the simulation's gripper command
 JAW_OPEN = 100.0  # a jaw in percent, 0 closed .. 100 open
 
 
@@ -76,7 +76,7 @@ def commanded_tcp(env: KitbenchEnv) -> np.ndarray:
 
 def tcp_target_to_action(env: KitbenchEnv, target: np.ndarray, gripper: float) -> np.ndarray:
     """The action of an end-effector mode that drives the TCP to `target` (4x4, base frame) with the gripper at
-    `gripper` (-1 open .. 1 closed), in the robot's units, within the action box; deltas are taken from what the
+    `gripper` (-1 closed .. 1 open), in the robot's units, within the action box; deltas are taken from what the
     mode applies them to, as `joint_target_to_action` takes them."""
     mode = env.control_mode
     if mode == "pd_ee_pose":
@@ -99,9 +99,9 @@ def _in_box(env: KitbenchEnv, arm: np.ndarray, gripper: float) -> np.ndarray:
 
 
 def jaw_command(percent: float) -> float:
-    """A jaw position in percent (0 closed .. 100 open) as the simulation's gripper command (1 closed .. -1 open),
+    """A jaw position in percent (0 closed .. 100 open) as the simulation's gripper command (-1 closed .. 1 open),
     the same scale `SO_FOLLOWER` puts on the SO-101's jaw."""
-    return 1.0 - percent / 50.0
+    return percent / 50.0 - 1.0
 
 
 class JointMapping:
@@ -132,7 +132,7 @@ class JointMapping:
         """Nothing: a leader arm holds no state between steps."""
 
     def targets(self, device_action: dict[str, Any]) -> tuple[np.ndarray, float]:
-        """The arm's joint targets (radians) and the gripper command (-1 open .. 1 closed) the device's values
+        """The arm's joint targets (radians) and the gripper command (-1 closed .. 1 open) the device's values
         set, each clipped to the simulated joint's limits; every clipped value counted."""
         values = np.array([float(device_action[k]) for k in self.arm_keys]) / self.per_radian
         low, high = self.limits[:, 0], self.limits[:, 1]
