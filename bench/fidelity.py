@@ -1,6 +1,6 @@
 """Fidelity to ManiSkill 3.0.1: the same actions from the same start, in both simulators, on LiftPegUpright-v1.
 
-    python bench/fidelity.py [--seeds 0-29] [--expert-seeds 0-19] [--out outputs/fidelity] [--fixture PATH]
+    python bench/fidelity.py [--seeds 0-29] [--expert-seeds 0-19] [--out outputs/fidelity] [--fixture-dir DIR]
 
 1. Builds ManiSkill 3.0.1 in a virtualenv of its own with the project's uv (`~/.cache/kitbench/maniskill-3.0.1`;
    mplib needs numpy < 2, which kitbench's environment does not have), once.
@@ -11,11 +11,14 @@
    as the recipes record), replayed open loop in ManiSkill from kitbench's initial state.
 4. Prints, per direction: successes in each simulator, the peg's final tilt and height in both, the tilt along the
    trajectory at fixed steps (seed by seed with `--verbose`), and the targets of docs/fidelity.md.
+5. Each control mode's answer to the same actions from the same start (`MODE_ACTIONS` in fidelity_maniskill.py):
+   the end-effector modes' first TCP target (what the action means) and the TCP along 16 steps in both.
 
 Both directions judge success by the geometric test (the peg's long axis within 0.08 rad of vertical, its centre
-within 5 mm of 0.12 m); ManiSkill's own Euler test is printed beside it for ManiSkill's runs. `--fixture PATH`
-writes the first `--fixture-episodes` successful ManiSkill episodes (start, actions, final peg pose) for
-tests/test_fidelity.py, which replays them in CI without ManiSkill.
+within 5 mm of 0.12 m); ManiSkill's own Euler test is printed beside it for ManiSkill's runs. `--fixture-dir DIR`
+writes the first `--fixture-episodes` successful ManiSkill episodes (start, actions, the peg along the way) and the
+control modes' answers (`FIXTURE_EPISODES`, `FIXTURE_MODES`) for tests/test_fidelity.py, which replays them in CI
+without ManiSkill.
 
 AssemblingKits-v1 is not compared here: its assets come from a download that is not available offline;
 docs/fidelity.md compares what can be (controllers, the Panda and its hand camera, pocket clearances, thresholds).
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -46,6 +50,8 @@ MANISKILL_PACKAGES = (MANISKILL, "sapien==3.0.3", "torch==2.11.0", "numpy<2")
 VENV = Path(os.environ.get("KITBENCH_MANISKILL_VENV", Path.home() / ".cache/kitbench/maniskill-3.0.1"))
 TRACE_STEPS = (25, 50, 75, 100, 125, 150)  # where the tilt along the trajectory is printed
 TILT_AGREEMENT = np.deg2rad(2.0)  # the target: final tilts within 2 degrees of ManiSkill's
+FIXTURE_EPISODES = "maniskill_lift_peg_upright.npz"
+FIXTURE_MODES = "maniskill_control_modes.npz"
 
 
 def maniskill_python() -> Path:
@@ -176,6 +182,52 @@ def compare(name: str, source: str, target: str, pairs: list[tuple[dict, dict]],
     return {"source_successes": len(both), "replayed_successes": ok, "tilt_within_2deg": close}
 
 
+def rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between two rotation matrices, in degrees."""
+    return float(np.rad2deg(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def replay_mode(data, mode: str) -> list[dict]:
+    """A control mode's recorded ManiSkill actions (`fidelity_maniskill.py modes`) replayed in kitbench from
+    ManiSkill's start: per step the TCP's world pose and the controller's TCP target (base frame), each against
+    ManiSkill's (mm, degrees; the target's gap is NaN in joint modes)."""
+    env = gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", control_mode=mode).unwrapped
+    env.reset(seed=0, options={"arm_qpos": data[f"{mode}/qpos0"][:7], "peg_pose": data[f"{mode}/peg0"]})
+    rows = []
+    for action, tcp, target in zip(data[f"{mode}/actions"], data[f"{mode}/tcp"], data[f"{mode}/target"], strict=True):
+        env.step(np.asarray(action, dtype=np.float32))
+        ours = env.robot.tcp_pose()
+        row = {
+            "tcp_mm": float(np.linalg.norm(ours.p - tcp[:3]) * 1000),
+            "tcp_deg": rotation_deg(quat_to_matrix(ours.q), quat_to_matrix(tcp[3:])),
+            "target_mm": float("nan"),
+            "target_deg": float("nan"),
+        }
+        mine = env.controller.tcp_target
+        if mine is not None and np.isfinite(target).all():
+            row["target_mm"] = float(np.linalg.norm(mine[:3, 3] - target[:3]) * 1000)
+            row["target_deg"] = rotation_deg(mine[:3, :3], quat_to_matrix(target[3:]))
+        rows.append(row)
+    env.close()
+    return rows
+
+
+def modes_table(data) -> None:
+    modes = sorted({key.split("/")[0] for key in data.files})
+    print("\n## Each control mode's answer to ManiSkill's actions (seed 0's start, 16 steps)")
+    print("| mode | first TCP target: gap | TCP along the way: largest gap | ManiSkill's TCP moved |")
+    print("|---|---|---|---|")
+    for mode in modes:
+        rows = replay_mode(data, mode)
+        first = rows[0]
+        target = "-" if np.isnan(first["target_mm"]) else f"{first['target_mm']:.2f} mm, {first['target_deg']:.2f} deg"
+        moved = np.linalg.norm(data[f"{mode}/tcp"][-1][:3] - data[f"{mode}/tcp"][0][:3]) * 1000
+        print(
+            f"| {mode} | {target} | {max(r['tcp_mm'] for r in rows):.1f} mm, {max(r['tcp_deg'] for r in rows):.2f} "
+            f"deg | {moved:.0f} mm |"
+        )
+
+
 def parse_seeds(text: str) -> list[int]:
     first, _, last = text.partition("-")
     return list(range(int(first), int(last or first) + 1))
@@ -187,7 +239,7 @@ def main() -> None:
     parser.add_argument("--expert-seeds", default="0-19", help="kitbench expert seeds, FIRST-LAST")
     parser.add_argument("--settle", type=int, default=10, help="steps the expert runs on after success")
     parser.add_argument("--out", type=Path, default=None, help="keep the episodes here (.npz)")
-    parser.add_argument("--fixture", type=Path, default=None, help="write the test fixture here")
+    parser.add_argument("--fixture-dir", type=Path, default=None, help="write the test fixtures here")
     parser.add_argument("--fixture-episodes", type=int, default=4)
     parser.add_argument("--verbose", action="store_true")
     args = parser.parse_args()
@@ -226,13 +278,18 @@ def main() -> None:
     print(f"- final tilt within 2 degrees on >= 90% of seeds: {c}/{n} {'met' if c >= 0.9 * n else 'NOT met'}")
     n, k = reverse["source_successes"], reverse["replayed_successes"]
     print(f"- kitbench's expert in ManiSkill >= 90%: {k}/{n} {'met' if k >= 0.9 * n else 'NOT met'}")
+
+    modes_file = out / "maniskill_modes.npz"
+    run_maniskill("modes", "--out", str(modes_file))
+    modes_table(np.load(modes_file))
     print(f"({time.perf_counter() - start:.0f} s; episodes in {out})")
 
-    if args.fixture:
+    if args.fixture_dir:
         chosen = [e for e, r in pairs if e["success"]][: args.fixture_episodes]
-        args.fixture.parent.mkdir(parents=True, exist_ok=True)
-        save_episodes(args.fixture, chosen)
-        print(f"fixture: {len(chosen)} episodes in {args.fixture} ({args.fixture.stat().st_size} bytes)")
+        args.fixture_dir.mkdir(parents=True, exist_ok=True)
+        save_episodes(args.fixture_dir / FIXTURE_EPISODES, chosen)
+        shutil.copyfile(modes_file, args.fixture_dir / FIXTURE_MODES)
+        print(f"fixtures: {len(chosen)} episodes and the control modes' answers in {args.fixture_dir}")
 
 
 if __name__ == "__main__":

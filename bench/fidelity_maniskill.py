@@ -2,6 +2,7 @@
 
     python fidelity_maniskill.py solve  --seeds 0-29 --out ms.npz        # ManiSkill's LiftPegUpright solution
     python fidelity_maniskill.py replay --episodes kb.npz --out back.npz   # kitbench's episodes, open loop
+    python fidelity_maniskill.py modes  --out modes.npz                    # each control mode's answer to actions
 
 Both write one .npz: per episode the initial arm joints and peg pose, the `pd_joint_pos` actions (ManiSkill's
 gripper convention: +1 opens), and the peg's pose, the TCP's pose and the finger joints after every step.
@@ -125,6 +126,61 @@ def replay(episodes_file: str, out: str) -> None:
     _pack(episodes, out)
 
 
+# A fixed action for each mode, held for STEPS steps then turned round (the arm part; the gripper stays open).
+MODE_ACTIONS = {
+    "pd_joint_delta_pos": [0.5, -0.4, 0.3, 0.6, -0.5, 0.4, 0.7],
+    "pd_joint_target_delta_pos": [0.5, -0.4, 0.3, 0.6, -0.5, 0.4, 0.7],
+    "pd_ee_delta_pos": [0.6, -0.5, 0.4],
+    "pd_ee_target_delta_pos": [0.6, -0.5, 0.4],
+    "pd_ee_delta_pose": [0.4, -0.3, 0.3, 0.5, -0.4, 0.6],
+    "pd_ee_target_delta_pose": [0.4, -0.3, 0.3, 0.5, -0.4, 0.6],
+}
+STEPS = 8
+
+
+def modes(out: str) -> None:
+    """Each mode from seed 0's start: `MODE_ACTIONS` for STEPS steps, its negative for STEPS more; `pd_joint_pos`
+    and `pd_ee_pose` are given absolute targets near the start. The TCP's pose (base frame = world here, the base
+    at the origin's offset) after every step."""
+    import mani_skill.envs  # noqa: F401
+
+    data = {}
+    for mode in [*MODE_ACTIONS, "pd_joint_pos", "pd_ee_pose"]:
+        env = gym.make(
+            "LiftPegUpright-v1",
+            obs_mode="none",
+            control_mode=mode,
+            render_mode=None,
+            sim_backend="physx_cpu",
+            max_episode_steps=1000,
+        )
+        env.reset(seed=0)
+        u = env.unwrapped
+        qpos0, peg0 = _initial(u)
+        if mode == "pd_joint_pos":
+            arm = qpos0[:7] + np.array([0.3, -0.2, 0.2, 0.3, -0.3, 0.2, 0.4])
+            actions = [np.append(arm, 1.0)] * (2 * STEPS)
+        elif mode == "pd_ee_pose":
+            base = u.agent.robot.pose.inv() * u.agent.tcp.pose
+            p = base.p[0].cpu().numpy() + np.array([0.05, -0.06, -0.08])
+            actions = [np.concatenate([p, [np.pi - 0.2, 0.15, 0.3], [1.0]])] * (2 * STEPS)
+        else:
+            a = np.asarray(MODE_ACTIONS[mode])
+            actions = [np.append(a, 1.0)] * STEPS + [np.append(-a, 1.0)] * STEPS
+        tcp, target = [], []
+        arm = u.agent.controller.controllers["arm"]
+        for action in actions:
+            env.step(np.asarray(action, dtype=np.float32))
+            tcp.append(u.agent.tcp.pose.raw_pose[0].cpu().numpy().astype(np.float64))
+            pose = getattr(arm, "_target_pose", None)  # the end-effector modes' TCP target, in the base frame
+            target.append(np.full(7, np.nan) if pose is None else pose.raw_pose[0].cpu().numpy().astype(np.float64))
+        data[f"{mode}/qpos0"], data[f"{mode}/peg0"] = qpos0, peg0
+        data[f"{mode}/actions"], data[f"{mode}/tcp"] = np.asarray(actions), np.asarray(tcp)
+        data[f"{mode}/target"] = np.asarray(target)
+        env.close()
+    np.savez_compressed(out, **data)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -134,9 +190,13 @@ def main() -> None:
     r = sub.add_parser("replay")
     r.add_argument("--episodes", required=True)
     r.add_argument("--out", required=True)
+    m = sub.add_parser("modes")
+    m.add_argument("--out", required=True)
     args = parser.parse_args()
     if args.command == "solve":
         solve(_seeds(args.seeds), args.out)
+    elif args.command == "modes":
+        modes(args.out)
     else:
         replay(args.episodes, args.out)
 

@@ -116,8 +116,8 @@ def measure(checkpoint: str, task: str, seeds: Sequence[int], expert_options: di
                 predicted = predict(obs)
                 qpos = u.robot.arm_qpos()
                 kinematics = u.controller.kinematics
-                want = kinematics.tcp_pose(u.controller.preview(label[:n_arm], qpos))
-                got = kinematics.tcp_pose(u.controller.preview(predicted[:n_arm], qpos))
+                want = kinematics.tcp_pose(u.controller.preview(u.action_to_sim(label)[:n_arm], qpos))
+                got = kinematics.tcp_pose(u.controller.preview(u.action_to_sim(predicted)[:n_arm], qpos))
                 row = phases[expert.phase or "policy"]
                 row["horizontal"].append(float(np.linalg.norm(want[:2, 3] - got[:2, 3])))
                 row["vertical"].append(float(abs(want[2, 3] - got[2, 3])))

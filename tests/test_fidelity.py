@@ -1,8 +1,9 @@
 """Fidelity to ManiSkill 3.0.1: its actions mean the same here, and its own demonstrations succeed replayed here.
 
-The fixture holds episodes of ManiSkill's LiftPegUpright motion-planning solution made in ManiSkill by
-`bench/fidelity.py --fixture` (its start, its `pd_joint_pos` actions and the peg's pose after every step), so CI
-holds fidelity without ManiSkill installed.
+The fixtures were made in ManiSkill by `bench/fidelity.py --fixture-dir tests/data`: episodes of its LiftPegUpright
+motion-planning solution (its start, its `pd_joint_pos` actions and the peg's pose after every step), and each
+control mode's answer to fixed actions (the TCP and the controller's TCP target after every step), so CI holds
+fidelity without ManiSkill installed.
 """
 
 from __future__ import annotations
@@ -14,15 +15,16 @@ import numpy as np
 import pytest
 
 import kitbench  # noqa: F401  (registers the tasks)
-from bench.fidelity import load_episodes, replay_in_kitbench, tilt_deg
-from kitbench.control.controllers import CONTROL_MODES
+from bench.fidelity import FIXTURE_EPISODES, FIXTURE_MODES, load_episodes, replay_in_kitbench, replay_mode, tilt_deg
+from kitbench.control.controllers import CONTROL_MODES, TARGET_DELTA_MODES, make_controller
 from kitbench.errors import KitbenchError
 from kitbench.planning.phases import CLOSED, OPEN
 from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.teleop.mapping import jaw_command
 
-FIXTURE = Path(__file__).parent / "data/maniskill_lift_peg_upright.npz"
-EPISODES = load_episodes(FIXTURE)
+DATA = Path(__file__).parent / "data"
+EPISODES = load_episodes(DATA / FIXTURE_EPISODES)
+MODES = np.load(DATA / FIXTURE_MODES)
 
 
 @pytest.fixture(scope="module")
@@ -93,3 +95,35 @@ def test_bad_initial_state_is_one_line(lift_env, options, name):
         lift_env.reset(seed=0, options=options)
     assert "\n" not in str(caught.value)
     np.testing.assert_equal(lift_env.reset(seed=0)[0], lift_env.reset(seed=0)[0])
+
+
+@pytest.mark.parametrize("mode", CONTROL_MODES)
+def test_an_action_means_what_it_means_in_maniskill(mode):
+    """The same action from the same start: an end-effector mode's first TCP target is ManiSkill's to a micrometre
+    (normalisation, frames, the Euler rotation and its sign); the joint modes and `pd_ee_pose` move the TCP as
+    ManiSkill's do, step by step. (Later targets of the end-effector delta modes part: ManiSkill's CPU IK holds
+    the arm on steps it does not converge on, and it bounds no target's lead: docs/fidelity.md.)"""
+    rows = replay_mode(MODES, mode)
+    if "_ee_" in mode:
+        assert rows[0]["target_mm"] < 1e-3 and rows[0]["target_deg"] < 1e-3, rows[0]
+    if "_ee_" not in mode or mode == "pd_ee_pose":
+        assert max(r["tcp_mm"] for r in rows) < 2.0 and max(r["tcp_deg"] for r in rows) < 0.5
+    if mode == "pd_ee_pose":
+        assert max(r["target_mm"] for r in rows) < 1e-3 and max(r["target_deg"] for r in rows) < 1e-3
+
+
+@pytest.mark.parametrize("mode", CONTROL_MODES)
+def test_decode_and_encode_are_inverse(mode):
+    """The action box is ManiSkill's ([-1, 1] for a delta mode), and an action read into physical units and back
+    is itself (rotations within the box's norm-1 ball; absolute Euler angles where they are unique, the middle one
+    within +-pi/2)."""
+    controller = make_controller(mode, np.array([[-2.9, 2.9]] * 7), lambda: None)
+    space = controller.action_space
+    if mode != "pd_joint_pos" and mode != "pd_ee_pose":
+        assert np.all(space.low == -1.0) and np.all(space.high == 1.0)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        action = rng.uniform(space.low[:-1], space.high[:-1]) * (0.2 if mode == "pd_ee_pose" else 0.5)
+        np.testing.assert_allclose(controller.encode(controller.decode(action)), action, atol=1e-9)
+    if mode in TARGET_DELTA_MODES or mode in ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose"):
+        np.testing.assert_allclose(controller.decode(np.ones(space.shape[0] - 1))[:3], 0.1)

@@ -1,26 +1,32 @@
 """The control modes. Each maps an action (last entry: gripper, -1 closed .. 1 open) to arm joint targets.
 
 End-effector modes solve IK with mink on the MuJoCo twin of the simulated Panda. Poses are in the robot's
-base frame (x forward, z up, origin at the base); rotations are axis-angle vectors.
+base frame (x forward, z up, origin at the base).
 
-| mode                      | arm action: from the measured state / the previous target | bounds             |
-|---------------------------|------------------------------------------------------------|--------------------|
-| pd_joint_delta_pos        | joint position deltas from the measured joints             | +-0.1 rad          |
-| pd_joint_target_delta_pos | joint position deltas from the previous joint target       | +-0.1 rad          |
-| pd_joint_pos              | absolute joint targets                                     | joint limits       |
-| pd_ee_delta_pos           | TCP translation from the measured TCP                      | +-0.1 m            |
-| pd_ee_target_delta_pos    | TCP translation from the previous TCP target               | +-0.1 m            |
-| pd_ee_delta_pose          | TCP translation, rotation from the measured TCP            | +-0.1 m, +-0.1 rad |
-| pd_ee_target_delta_pose   | TCP translation, rotation from the previous TCP target     | +-0.1 m, +-0.1 rad |
-| pd_ee_pose                | absolute TCP position, rotation                            | +-1 m, +-pi rad    |
+An action is expressed as ManiSkill 3.0.1 expresses it (`action_space`, `decode`, `encode`): the delta modes
+normalised to [-1, 1] (1 is 0.1 rad or 0.1 m), rotations as XYZ Euler triples (ManiSkill's `euler_angles_to_matrix`
+order; a delta rotation clipped to norm 1 and scaled by its `rot_lower`, -0.1, so +1 turns the other way round).
+Inside, each controller works in physical units (`physical_space`: radians, metres, axis-angle vectors):
 
-The names and semantics are ManiSkill's. A delta mode applies the action to the measured state, which the
-observation holds, so the same observation and action always mean the same target: a policy can learn it. A
-`*_target_delta_*` mode accumulates on the previous target, as a real arm's impedance controller integrates
-commands (ten +1 cm steps move the TCP 10 cm once the arm settles, however the PD drives lag); the target is
-state the observation does not show. So that a blocked arm does not wind up, an accumulated target never leads
-the measured state by more than `MAX_JOINT_LEAD` / `MAX_POS_LEAD` / `MAX_ROT_LEAD`. Rotation deltas turn the
-TCP about axes parallel to the base frame's, centred at the TCP. `pd_ee_delta_pos` keeps the orientation last
+| mode                      | arm action: from the measured state / the previous target | action: 1 is      |
+|---------------------------|------------------------------------------------------------|-------------------|
+| pd_joint_delta_pos        | joint position deltas from the measured joints             | 0.1 rad           |
+| pd_joint_target_delta_pos | joint position deltas from the previous joint target       | 0.1 rad           |
+| pd_joint_pos              | absolute joint targets (joint limits)                      | 1 rad             |
+| pd_ee_delta_pos           | TCP translation from the measured TCP                      | 0.1 m             |
+| pd_ee_target_delta_pos    | TCP translation from the previous TCP target               | 0.1 m             |
+| pd_ee_delta_pose          | TCP translation, rotation from the measured TCP            | 0.1 m, -0.1 rad   |
+| pd_ee_target_delta_pose   | TCP translation, rotation from the previous TCP target     | 0.1 m, -0.1 rad   |
+| pd_ee_pose                | absolute TCP position (+-2 m), XYZ Euler rotation (+-2 pi) | 1 m, 1 rad        |
+
+The names and semantics are ManiSkill's (docs/fidelity.md lists what still differs). A delta mode applies the
+action to the measured state, which the observation holds, so the same observation and action always mean the
+same target: a policy can learn it. A `*_target_delta_*` mode accumulates on the previous target, as a real arm's
+impedance controller integrates commands (ten 1 cm steps move the TCP 10 cm once the arm settles, however the PD
+drives lag); the target is state the observation does not show. So that a blocked arm does not wind up (a
+difference from ManiSkill, which bounds nothing), an accumulated target never leads the measured state by more
+than `MAX_JOINT_LEAD` / `MAX_POS_LEAD` / `MAX_ROT_LEAD`. Rotation deltas turn the TCP about axes parallel to the
+base frame's, centred at the TCP. `pd_ee_delta_pos` keeps the orientation last
 commanded: its action has no rotation, and a target built on the measured orientation would keep whatever a
 contact or the drives' tracking error did to it instead of restoring it.
 """
@@ -32,6 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium import spaces
+from scipy.spatial.transform import Rotation
 
 from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
@@ -43,9 +50,22 @@ if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never
 MEASURED_DELTA_MODES = ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
 TARGET_DELTA_MODES = ("pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose")
 JOINT_DELTA_MODES = ("pd_joint_delta_pos", "pd_joint_target_delta_pos")
-MAX_JOINT_LEAD = 0.2  # rad
+# twice the lag of ManiSkill's gains at 2 rad/s (0.2 rad): at 0.2 the LiftPegUpright expert lost all 40 swings
+MAX_JOINT_LEAD = 0.4  # rad
 MAX_POS_LEAD = 0.1  # m
 MAX_ROT_LEAD = 0.4  # rad
+DELTA_BOUND = 0.1  # rad or m: what a delta action of 1 commands (ManiSkill's Panda and Fetch)
+ROT_SCALE = -DELTA_BOUND  # ManiSkill scales a delta rotation by its `rot_lower`, -0.1: +1 turns the other way round
+
+
+def euler_to_axis_angle(euler) -> np.ndarray:
+    """An XYZ Euler triple as ManiSkill reads one (R = Rx @ Ry @ Rz) to an axis-angle vector."""
+    return Rotation.from_euler("XYZ", np.asarray(euler, dtype=np.float64)).as_rotvec()
+
+
+def axis_angle_to_euler(rotvec) -> np.ndarray:
+    """`euler_to_axis_angle`'s inverse (angles in [-pi, pi], the middle one in [-pi/2, pi/2])."""
+    return Rotation.from_rotvec(np.asarray(rotvec, dtype=np.float64)).as_euler("XYZ")
 
 
 def _box(low, high) -> spaces.Box:
@@ -63,10 +83,30 @@ def _limit_rotation_lead(target: np.ndarray, measured: np.ndarray) -> np.ndarray
 
 
 class Controller:
-    """Keeps the arm's joint target (and, for end-effector modes, the TCP target) between steps."""
+    """Keeps the arm's joint target (and, for end-effector modes, the TCP target) between steps.
+
+    `action_space` is the action's box as ManiSkill has it; `physical_space` the same action in radians, metres
+    and axis-angle vectors, which `arm_targets` takes; `decode` and `encode` turn one into the other (the arm part,
+    then the gripper, which both leave as it is)."""
 
     mode: str
-    action_space: spaces.Box
+    physical_space: spaces.Box
+
+    @property
+    def action_space(self) -> spaces.Box:
+        return self.physical_space
+
+    def decode(self, arm_action: np.ndarray) -> np.ndarray:
+        """The arm part of an action, as ManiSkill expresses it, in physical units."""
+        return np.asarray(arm_action, dtype=np.float64)
+
+    def encode(self, arm: np.ndarray) -> np.ndarray:
+        """`decode`'s inverse (unclipped: it can say how far outside the box a command lies)."""
+        return np.asarray(arm, dtype=np.float64)
+
+    def scale(self) -> np.ndarray:
+        """Action units per physical unit of each arm entry, near zero (noise sizes)."""
+        return np.ones(self.physical_space.shape[0] - 1)
 
     def __init__(self, arm_limits: np.ndarray, kinematics_factory: Callable[[], ArmKinematics]) -> None:
         self.arm_limits = arm_limits
@@ -127,7 +167,25 @@ class Controller:
         return self.joint_target
 
 
-class JointDeltaPos(Controller):
+class _Normalised(Controller):
+    """A delta mode: ManiSkill's action in [-1, 1], `DELTA_BOUND` a unit."""
+
+    @property
+    def action_space(self) -> spaces.Box:
+        n = self.physical_space.shape[0]
+        return spaces.Box(-np.ones(n, dtype=np.float32), np.ones(n, dtype=np.float32), dtype=np.float32)
+
+    def decode(self, arm_action):
+        return np.clip(np.asarray(arm_action, dtype=np.float64), -1.0, 1.0) * DELTA_BOUND
+
+    def encode(self, arm):
+        return np.asarray(arm, dtype=np.float64) / DELTA_BOUND
+
+    def scale(self):
+        return np.full(self.physical_space.shape[0] - 1, 1.0 / DELTA_BOUND)
+
+
+class JointDeltaPos(_Normalised):
     """Joint deltas from the measured joint positions."""
 
     mode = "pd_joint_delta_pos"
@@ -135,7 +193,7 @@ class JointDeltaPos(Controller):
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
         n = len(arm_limits)
-        self.action_space = _box(np.full(n, -0.1), np.full(n, 0.1))
+        self.physical_space = _box(np.full(n, -0.1), np.full(n, 0.1))
 
     def arm_targets(self, arm_action, arm_qpos):
         self.joint_target = self._clip_to_limits(arm_qpos + arm_action)
@@ -158,14 +216,14 @@ class JointPos(Controller):
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
-        self.action_space = _box(arm_limits[:, 0], arm_limits[:, 1])
+        self.physical_space = _box(arm_limits[:, 0], arm_limits[:, 1])
 
     def arm_targets(self, arm_action, arm_qpos):
         self.joint_target = self._clip_to_limits(arm_action.astype(np.float64))
         return self.joint_target
 
 
-class _EEDelta(Controller):
+class _EEDelta(_Normalised):
     """Shared by the delta end-effector modes: the delta applies to the measured TCP pose, or (`accumulate`) to
     the previous TCP target with a bounded lead over the measured TCP."""
 
@@ -190,7 +248,7 @@ class EEDeltaPos(_EEDelta):
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
-        self.action_space = _box(np.full(3, -0.1), np.full(3, 0.1))
+        self.physical_space = _box(np.full(3, -0.1), np.full(3, 0.1))
 
     def arm_targets(self, arm_action, arm_qpos):
         return self._delta_target(arm_action[:3], None, arm_qpos)
@@ -206,10 +264,21 @@ class EEDeltaPose(_EEDelta):
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
-        self.action_space = _box(np.full(6, -0.1), np.full(6, 0.1))
+        self.physical_space = _box(np.full(6, -0.1), np.full(6, 0.1))
 
     def arm_targets(self, arm_action, arm_qpos):
         return self._delta_target(arm_action[:3], arm_action[3:6], arm_qpos)
+
+    def decode(self, arm_action):
+        """Translation as every delta mode; the rotation an XYZ Euler triple, clipped to norm 1 (ManiSkill clips
+        it by norm, not by entry) and scaled by `ROT_SCALE`."""
+        a = np.asarray(arm_action, dtype=np.float64)
+        rotation = a[3:6] / max(1.0, float(np.linalg.norm(a[3:6])))
+        return np.concatenate([super().decode(a[:3]), euler_to_axis_angle(rotation * ROT_SCALE)])
+
+    def encode(self, arm):
+        p = np.asarray(arm, dtype=np.float64)
+        return np.concatenate([super().encode(p[:3]), axis_angle_to_euler(p[3:6]) / ROT_SCALE])
 
 
 class EETargetDeltaPose(EEDeltaPose):
@@ -220,12 +289,24 @@ class EETargetDeltaPose(EEDeltaPose):
 class EEPose(Controller):
     mode = "pd_ee_pose"
 
-    def __init__(self, arm_limits, kinematics_factory, position_bound: float = 1.0):
-        """`position_bound`: the position box (m) around the base frame's origin; wider for a robot whose base
-        frame is far from its workspace (Fetch's is on the floor, its TCP up to ~1.4 m above it)."""
+    def __init__(self, arm_limits, kinematics_factory, position_bound: float = 2.0):
+        """`position_bound`: the position box (m) around the base frame's origin (ManiSkill's Panda: 2 m)."""
         super().__init__(arm_limits, kinematics_factory)
-        b = position_bound
-        self.action_space = _box([-b, -b, -b, -np.pi, -np.pi, -np.pi], [b, b, b, np.pi, np.pi, np.pi])
+        b, r = position_bound, 2 * np.pi  # ManiSkill's rotation bounds for an absolute pose
+        self.physical_space = _box([-b, -b, -b, -np.pi, -np.pi, -np.pi], [b, b, b, np.pi, np.pi, np.pi])
+        self._action_space = _box([-b, -b, -b, -r, -r, -r], [b, b, b, r, r, r])
+
+    @property
+    def action_space(self) -> spaces.Box:
+        return self._action_space
+
+    def decode(self, arm_action):
+        a = np.asarray(arm_action, dtype=np.float64)
+        return np.concatenate([a[:3], euler_to_axis_angle(a[3:6])])
+
+    def encode(self, arm):
+        p = np.asarray(arm, dtype=np.float64)
+        return np.concatenate([p[:3], axis_angle_to_euler(p[3:6])])
 
     def arm_targets(self, arm_action, arm_qpos):
         target = np.eye(4)
@@ -259,7 +340,7 @@ def make_controller(
     mode: str,
     arm_limits: np.ndarray,
     kinematics_factory: Callable[[], ArmKinematics],
-    position_bound: float = 1.0,
+    position_bound: float = 2.0,
 ) -> Controller:
     if mode not in _CONTROLLERS:
         raise KitbenchError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")

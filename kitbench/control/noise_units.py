@@ -24,13 +24,13 @@ NOISE_UNITS = {
 
 def noise_std(env, scale: float) -> np.ndarray:
     """Per-entry standard deviation of `scale` noise units on the action of `env` (a `KitbenchEnv` or the env itself):
-    the arm part gets the mode's units, in the robot's action units (`RobotSpec.units`: the SO-101's joints in
-    degrees); the gripper, and a robot's body joints and base after it, get none (flipping a gripper or driving a
+    the arm part gets the mode's units, in the action's units (ManiSkill's normalised deltas, the SO-101's joints
+    in degrees); the gripper, and a robot's body joints and base after it, get none (flipping a gripper or driving a
     base is not a small deviation to recover from)."""
     mode = env.control_mode
     n_arm = env.controller.action_space.shape[0] - 1
     units = NOISE_UNITS[mode]
     per_entry = np.asarray(units * n_arm if len(units) == 1 else units, dtype=np.float64)
     std = np.zeros(env.action_space.shape[0])
-    std[:n_arm] = scale * per_entry * env.robot_spec.units.joint_unit(mode)
+    std[:n_arm] = scale * per_entry * env.arm_action_scale()
     return std

@@ -119,6 +119,10 @@ class KitbenchEnv(gym.Wrapper):
         """An action in the simulation's units to the robot's (the action space's)."""
         return self._core.action_from_sim(action)
 
+    def arm_action_scale(self) -> np.ndarray:
+        """Action units per simulation unit of each arm entry (`TabletopEnv.arm_action_scale`)."""
+        return self._core.arm_action_scale()
+
     # -- cameras ---------------------------------------------------------------------------------
     @property
     def camera_names(self) -> tuple[str, ...]:

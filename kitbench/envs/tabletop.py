@@ -423,7 +423,8 @@ class TabletopEnv(gym.Env, abc.ABC):
         """The controller's arm part and gripper, then the robot's body joint deltas and base velocities, in the
         robot's units."""
         spec = self._robot_spec
-        space = self.controller.action_space
+        controller = self.controller
+        space = controller.physical_space if spec.units.expresses(self.control_mode) else controller.action_space
         arm_low, arm_high = spec.units.action_bounds(spec, self.control_mode, self._n_arm, space.low, space.high)
         low, high = spec.extra_action_bounds()
         return spaces.Box(np.concatenate([arm_low, low]), np.concatenate([arm_high, high]), dtype=np.float32)
@@ -434,15 +435,32 @@ class TabletopEnv(gym.Env, abc.ABC):
         return self.controller.action_space.shape[0] - 1
 
     def action_to_sim(self, action: np.ndarray) -> np.ndarray:
-        """An action in the robot's units (`RobotSpec.units`, the action space's) to the simulation's: arm joints
-        in radians, the gripper a command from -1 (closed) to 1 (open). The identity for SI robots."""
-        spec = self._robot_spec
-        return spec.units.action_to_sim(spec, self.control_mode, self._n_arm, action)
+        """An action as the action space has it (ManiSkill's form, `Controller.decode`, or the robot's units where
+        they express the mode: `RobotSpec.units`) to the simulation's: the arm part in radians, metres and
+        axis-angle vectors, the gripper a command from -1 (closed) to 1 (open)."""
+        spec, mode, n = self._robot_spec, self.control_mode, self._n_arm
+        out = np.array(spec.units.action_to_sim(spec, mode, n, action), dtype=np.float64)
+        if not spec.units.expresses(mode):
+            out[:n] = self.controller.decode(out[:n])
+        out[n + 1 :] /= spec.extra_action_scale()
+        return out
 
     def action_from_sim(self, action: np.ndarray) -> np.ndarray:
-        """`action_to_sim`'s inverse: an action in the simulation's units to the robot's (the action space's)."""
-        spec = self._robot_spec
-        return spec.units.action_from_sim(spec, self.control_mode, self._n_arm, action)
+        """`action_to_sim`'s inverse: an action in the simulation's units to the action space's (unclipped)."""
+        spec, mode, n = self._robot_spec, self.control_mode, self._n_arm
+        out = np.array(action, dtype=np.float64)
+        if not spec.units.expresses(mode):
+            out[:n] = self.controller.encode(out[:n])
+        out[n + 1 :] *= spec.extra_action_scale()
+        return spec.units.action_from_sim(spec, mode, n, out).astype(np.asarray(action).dtype)
+
+    def arm_action_scale(self) -> np.ndarray:
+        """Action units per simulation unit of each arm entry (a joint's degrees, a normalised delta's 10 per rad
+        or m): noise sized in simulation units is this much in the action."""
+        spec, mode = self._robot_spec, self.control_mode
+        if spec.units.expresses(mode):
+            return np.full(self._n_arm, spec.units.joint_unit(mode))
+        return self.controller.scale()
 
     def _apply(self, action: np.ndarray) -> None:
         """Send one checked action to the drives: arm, gripper, body joints, base (module `kitbench.robots.spec`)."""

@@ -23,11 +23,11 @@ from kitbench.planning.phases import OPEN, PhaseSequencer, Step, hold
 from kitbench.planning.poses import pose_matrix
 
 # In pd_joint_delta_pos the target leads the measured joints by at most the action bound (0.1 rad), and the
-# drives cover only part of a lead in one control step: ~0.063 rad for the wrist mid-swing. A plan faster than
-# that falls behind and the swing loses the peg; plans there use this fraction of the bound per step.
-# LiftPegUpright seeds 0-99: 0/100 at 0.98 and at 0.7, 100/100 at 0.6 (median 41 steps of 50, max 46);
-# AssemblingKits seeds 0-99 at 0.6: 100/100 (median 55 steps of 200).
-MEASURED_DELTA_TRACKING = 0.6
+# drives cover only part of a lead in one control step; a plan faster than that falls behind and the swing loses
+# the peg; plans there use this fraction of the bound per step. Under ManiSkill's gains (docs/fidelity.md),
+# LiftPegUpright seeds 0-39 with 100 steps: 0/40 at 0.6, 40/40 at 0.4 (median 62 steps, past the task's 50),
+# 40/40 at 0.3 (median 73); AssemblingKits seeds 0-39 at 0.4: 40/40 (median 72 of 200).
+MEASURED_DELTA_TRACKING = 0.4
 # Each action's joint targets lead the plan by this share of the drives' lag (damping / stiffness times the plan's
 # joint velocity): with ManiSkill's gains the Panda trails a swing by up to 0.19 rad, and the LiftPegUpright expert
 # then set 45 of 100 pegs down at the wrong height; at 0.5: 100/100 (at 1.0 the overshoot re-grasped 5 of them).
@@ -83,7 +83,7 @@ class PhasePlanner(ABC):
         self.max_acceleration = self.cfg.speed_factor * np.asarray(spec.arm_acceleration_limits)
         if self.env.control_mode in JOINT_DELTA_MODES:  # their actions move a joint at most this far per step
             fraction = MEASURED_DELTA_TRACKING if self.env.control_mode in MEASURED_DELTA_MODES else 0.98
-            step_limit = self.env.controller.action_space.high[: self.n_arm].astype(np.float64) * fraction
+            step_limit = self.env.controller.physical_space.high[: self.n_arm].astype(np.float64) * fraction
             self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
         kinematics = ArmKinematics(spec)
         kinematics.set_body(self.env.robot.body_qpos())

@@ -24,7 +24,8 @@ CARD = "README.md"
 UNITS = {
     "observation.state": "arm joint positions (rad), gripper opening (m), then any body joints and base pose",
     "observation.environment_state": "object and goal poses (m; quaternions w, x, y, z) and the task's fields",
-    "action": "the policy's action in the control mode (last arm entry: gripper, -1 closed, 1 open, as ManiSkill)",
+    "action": "the policy's action in the control mode, as ManiSkill 3.0.1 has it (delta modes in [-1, 1], 1 being "
+    "0.1 rad or m; rotations XYZ Euler; after the arm the gripper, -1 closed .. 1 open)",
     "executed_action": "what the robot executed: `action` plus any recording noise",
     "commanded_ee_pose": "the controller's TCP target, base frame (m; quaternion w, x, y, z)",
 }

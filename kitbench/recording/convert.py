@@ -137,7 +137,8 @@ class SourceReplay:
         source's body joints and base commands and hand aside, which fit it as they are); `source_action` in the
         simulation's units."""
         action = joint_target_to_action(self.env, target, float(source_action[n_arm]), clip=False)
-        extra = source_action[n_arm + 1 :]  # body joints and base: deltas and velocities whatever the arm's mode
+        # body joints and base: deltas and velocities whatever the arm's mode, in the action's units
+        extra = source_action[n_arm + 1 :] * self.env.robot_spec.extra_action_scale()
         if len(extra):
             action[-len(extra) :] = extra
         space = self.env.action_space

@@ -78,7 +78,7 @@ class RobotSpec:
     # One jaw fixed to the hand (the TCP on its face) and one moving onto it, instead of two fingers closing on the
     # TCP together: a held object's centre lies off the TCP by its half-width, along the TCP's y.
     fixed_jaw: bool = False
-    ee_position_bound: float = 1.0  # m: `pd_ee_pose`'s position box around the base frame's origin
+    ee_position_bound: float = 2.0  # m: `pd_ee_pose`'s position box around the base frame's origin (ManiSkill's)
     body_joints: tuple[str, ...] = ()  # position-driven joints outside the arm, delta-commanded
     body_ready: tuple[float, ...] = ()
     body_action_bound: float = 0.1  # rad or m a step
@@ -143,11 +143,17 @@ class RobotSpec:
         return names
 
     def extra_action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        high = [self.body_action_bound] * len(self.body_joints)
-        if self.has_base:
-            high += [self.base_max_speed, self.base_max_yaw_rate]
-        h = np.asarray(high, dtype=np.float32)
+        """The action box of the entries after the gripper: ManiSkill's [-1, 1] for each (`extra_action_scale`)."""
+        h = np.ones(len(self.extra_action_names), dtype=np.float32)
         return -h, h
+
+    def extra_action_scale(self) -> np.ndarray:
+        """Action units per simulation unit (rad or m a step, m/s, rad/s) of each entry after the gripper: ManiSkill
+        normalises its Fetch's body deltas and base velocities to [-1, 1]."""
+        scale = [1.0 / self.body_action_bound] * len(self.body_joints)
+        if self.has_base:
+            scale += [1.0 / self.base_max_speed, 1.0 / self.base_max_yaw_rate]
+        return np.asarray(scale, dtype=np.float64)
 
     @property
     def state_names(self) -> tuple[str, ...]:

@@ -6,8 +6,9 @@ SO-100/SO-101 (`lerobot/robots/so_follower`, `use_degrees`): the body joints in 
 0 to 100 over its range (LeRobot's `RANGE_0_100`), each named `<motor>.pos`, so that a recording has the real
 arm's layout. The env converts at its boundary (`TabletopEnv.action_to_sim`, `action_from_sim`, `robot_state`).
 
-Joint actions (absolute and deltas) take the joint unit; end-effector actions stay in metres and radians, having
-no motor to speak for. A robot in `SO_FOLLOWER` units commands its jaw's position (0..100) in every mode, as the
+`SI` robots' actions are ManiSkill's (delta modes normalised to [-1, 1]); `SO_FOLLOWER`'s joint actions (absolute
+and deltas) take the joint unit, and its end-effector actions are ManiSkill's, having no motor to speak for. A
+robot in `SO_FOLLOWER` units commands its jaw's position (0..100) in every mode, as the
 real arm's leader does; its body joints and base, if it had any, would stay in SI.
 """
 
@@ -31,6 +32,9 @@ class JointUnits:
     per_radian: float = 1.0  # joint values (positions and deltas) per radian
     gripper_percent: bool = False  # the gripper as its joint's position, 0 (closed) .. 100 (open) over its range
     suffix: str = ""  # appended to each joint's name (LeRobot's motor features: ".pos")
+    # Whether joint-mode actions are in these units (a real arm's degrees) rather than ManiSkill's form (the delta
+    # modes normalised to [-1, 1]: `kitbench.control.controllers`); end-effector modes are always ManiSkill's.
+    joint_actions: bool = False
     # What a dataset card says `observation.state` and `action` hold in these units (None: kitbench's SI wording).
     state_text: str | None = None
     action_text: str | None = None
@@ -49,6 +53,10 @@ class JointUnits:
 
     def gripper_action_name(self, spec: RobotSpec) -> str:
         return f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper"
+
+    def expresses(self, mode: str) -> bool:
+        """Whether the arm part of `mode`'s action is in these units (else in ManiSkill's form)."""
+        return self.joint_actions and mode in JOINT_MODES
 
     # -- values ----------------------------------------------------------------------------------------
     def state(self, spec: RobotSpec, vector: np.ndarray) -> np.ndarray:
@@ -126,6 +134,7 @@ SO_FOLLOWER = JointUnits(
     "so_follower",
     per_radian=180.0 / math.pi,
     gripper_percent=True,
+    joint_actions=True,
     suffix=".pos",
     state_text="the arm's motors as LeRobot's SO follower reports them: joints in degrees, `gripper.pos` 0 (closed) "
     "to 100 (open)",
