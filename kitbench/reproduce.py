@@ -26,8 +26,8 @@ from pathlib import Path
 from kitbench.config.checks import optional, positive_int, seed as seed_check
 from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError, check_choice
+from kitbench.shipped import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 PUBLISHED = ROOT / "policies" / "published.toml"
 THREADS_VAR = "OMP_NUM_THREADS"
 
