@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, one_line
 
 TASK = "AssemblingKits-v1"
 SETTLE = 6  # steps after the close command at which the hand's opening is read
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
             raise KitbenchError(f"no episode to replay: {args.report or args.seeds!r} has none ending {args.failure}")
         rows = measure(args.policy, seeds, args.control_mode)
     except (KitbenchError, OSError, ValueError) as exc:  # ValueError: a report that is not JSON, a policy's mismatch
-        print(f"grasp_misses: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        print(f"grasp_misses: error: {one_line(exc, typed=False)}", file=sys.stderr)
         return 2
     print(f"{args.policy} on {TASK}, first close command per episode:")
     print_rows(rows)

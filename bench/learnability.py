@@ -3,7 +3,7 @@
     python bench/learnability.py --task LiftPegUpright-v1 --obs state --demos 50,100,200 --policy act [--steps N]
         [--out outputs/learnability] [--control-mode M] [--action-noise X] [--noise-phases P,Q] [--settle-steps K]
         [--suite-episodes E] [--eval-batch-size B] [--tag NAME] [--config policies/X.json] [--recipe datasets/X.toml]
-        [--policy-option KEY=V1[,V2...] ...] [--train-seeds 1000,2000,3000] [--suites standard,heldout]
+        [--policy-option KEY=V1[,V2...] ...] [--train-seeds 1000,2000,3000] [--suites standard,heldout] [--overwrite]
 
 For each demo count D (one run each) it records D expert demonstrations from the task's recipe (`kitbench record`),
 trains the policy config on them (`lerobot-train`, untouched but for the dataset, output folder and the flags above;
@@ -28,7 +28,9 @@ training's threads; every row stores it, and the same workload timed again as ea
 that slowed down during a long training shows it), and the hours that makes from the config's published figures
 (`policies/published.toml`) scaled by the two machines' reference seconds. The run is resumable: a checkpoint
 whose training finished with the same command, and an evaluation report made by the same command, are reused, so
-a killed run started again picks up where it stopped.
+a killed run started again picks up where it stopped. A finished training of another request (the command, the
+threads, the data), or whose recording would be recorded again, is refused in one line before anything runs;
+`--overwrite` replaces it.
 
 Each row is appended to <out>/results.jsonl with the exact commands, the machine and the versions, and
 <out>/<task>_<obs>_success_vs_demos.png plots success against demos for every (policy, tag) found there, latest row
@@ -126,6 +128,7 @@ class Plan:
     # lerobot-train's --seed per training; None: the config's own
     train_seeds: tuple[int | None, ...] = (None,)
     progress: bool = True  # the training's steps shown as they come (a line a minute off a terminal)
+    overwrite: bool = False  # replace finished trainings of another request, and the recordings they trained on
 
 
 def parse_sweep(texts: list[str], policy_type: str) -> tuple[tuple[tuple[str, object], ...], ...]:
@@ -336,6 +339,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         tag=args.tag,
         option_sets=parse_sweep(args.policy_option or [], config_data["policy"]["type"]),
         train_seeds=parse_train_seeds(args.train_seeds),
+        overwrite=args.overwrite,
     )
 
 
@@ -360,10 +364,10 @@ def _recorded_episodes(data: Path) -> int | None:
         return None
 
 
-def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bool]:
-    """Record the run's demonstrations, or reuse the dataset already there if the same command recorded it from
-    the same recipe with this kitbench version (the recording settings alone omit the episode count and any
-    recipe key kitbench does not yet store). Returns the recording command and whether the data was reused."""
+def dataset_request(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], dict, bool]:
+    """The recording command for the run, what identifies its recording, and whether the dataset already there is
+    reused: the same command recorded it from the same recipe with this kitbench version (the recording settings
+    alone omit the episode count and any recipe key kitbench does not yet store)."""
     data = run_dir / "data"
     command = record_command(plan, demos, data)
     request = {
@@ -373,15 +377,25 @@ def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bo
     }
     stamp = run_dir / "record_request.json"
     recorded = read_recording_settings(data)
-    if (
+    reused = (
         recorded is not None
         and stamp.is_file()
         and json.loads(stamp.read_text()) == {**request, "recording": recorded}
         and recorded.get("kitbench_version") == kitbench.__version__
         and recorded.get("control_mode") == plan.control_mode
         and _recorded_episodes(data) == demos
-    ):
+    )
+    return command, request, reused
+
+
+def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bool]:
+    """Record the run's demonstrations, or reuse the dataset already there (`dataset_request`). Returns the
+    recording command and whether the data was reused."""
+    data = run_dir / "data"
+    command, request, reused = dataset_request(plan, run_dir, demos)
+    if reused:
         return command, True
+    stamp = run_dir / "record_request.json"
     stamp.unlink(missing_ok=True)
     run.run_logged(command, run_dir / "record.log")
     recorded = read_recording_settings(data)
@@ -391,21 +405,34 @@ def ensure_dataset(plan: Plan, run_dir: Path, demos: int) -> tuple[list[str], bo
     return command, False
 
 
+# The data stamp of a recording `ensure_dataset` will make again: no finished training was made on it.
+RECORDED_AGAIN = "recorded again"
+
+
+def training(plan: Plan, data: Path, policy_dir: Path, seed: int | None = None, data_stamp: str | None = None):
+    """The training of `plan.config` on `data` into `policy_dir` (`data_stamp`: the recording's stamp, by default
+    the one beside `data`)."""
+    extra = (f"--env.control_mode={plan.control_mode_flag}",) if plan.control_mode_flag and plan.config_has_env else ()
+    if data_stamp is None:
+        stamp = data.parent / "record_request.json"
+        data_stamp = stamp.read_text() if stamp.is_file() else ""
+    return run.Training(plan.config, data, policy_dir, plan.train_threads, plan.steps, seed, extra, data_stamp)
+
+
+def check_trainings(plan: Plan) -> None:
+    """Before anything is recorded: a finished training in a run folder is neither trained again by another
+    request nor left without the recording it was trained on, unless --overwrite (`run.FinishedTraining`)."""
+    for demos in plan.demos:
+        run_dir = plan.out / run_name(plan, demos)
+        _, _, reused = dataset_request(plan, run_dir, demos)
+        for seed in plan.train_seeds:
+            stamp = None if reused else RECORDED_AGAIN
+            run.check_replace(training(plan, run_dir / "data", policy_dir_of(plan, run_dir, seed), seed, stamp))
+
+
 def train(plan: Plan, data: Path, policy_dir: Path, seed: int | None = None) -> dict:
     """Train (or reuse a checkpoint the same command trained on the same data): `kitbench.training.run.train`."""
-    extra = (f"--env.control_mode={plan.control_mode_flag}",) if plan.control_mode_flag and plan.config_has_env else ()
-    stamp = data.parent / "record_request.json"
-    return run.train(
-        plan.config,
-        data,
-        policy_dir,
-        threads=plan.train_threads,
-        steps=plan.steps,
-        seed=seed,
-        extra=extra,
-        data_stamp=stamp.read_text() if stamp.is_file() else "",
-        progress=plan.progress,
-    )
+    return run.train(training(plan, data, policy_dir, seed), progress=plan.progress, overwrite=plan.overwrite)
 
 
 def eval_dir_name(suite_name: str, options: tuple[tuple[str, object], ...]) -> str:
@@ -431,7 +458,7 @@ def evaluate(
         batch_size=plan.eval_batch_size,
         options=options,
     )
-    report, reused = run.evaluate(command, eval_dir)
+    report, reused = run.evaluate(command, eval_dir, policy_dir / run.TRAIN_STAMP)
     return command, report, reused
 
 
@@ -776,6 +803,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--batch-size; default 1)",
     )
     parser.add_argument("--tag", help="names a variant: run folders, results rows and plot lines carry it")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a finished training of another request (and the recording it trained on) in --out",
+    )
     parser.add_argument("--config", help="lerobot-train config (default policies/<policy>_<task>_<obs>.json)")
     parser.add_argument("--recipe", help="kitbench record recipe (default datasets/<task>_<obs>.toml)")
     parser.add_argument(
@@ -801,7 +833,9 @@ def main() -> int:
     try:
         plan = check_args(args)
         check_run_folders(plan)
-    except UsageError as exc:
+        if not plan.overwrite:
+            check_trainings(plan)
+    except (UsageError, run.FinishedTraining) as exc:
         print(f"learnability: error: {exc}", file=sys.stderr)
         return 2
     reference_s = reference_seconds(int(plan.train_threads))
@@ -819,6 +853,9 @@ def main() -> int:
     try:
         for demos in plan.demos:
             one_run(plan, demos, reference_s, on_row)
+    except run.FinishedTraining as exc:  # made by another run into the same folder since this one checked
+        print(f"learnability: error: {exc}", file=sys.stderr)
+        return 2
     except run.CommandFailed as exc:
         if rows:
             print(table(rows))

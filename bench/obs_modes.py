@@ -38,6 +38,7 @@ from throughput import names
 import kitbench
 from kitbench.doctor import check_vulkan
 from kitbench.envs.modes import OBS_MODES
+from kitbench.errors import one_line
 from kitbench.recording.config import OBS_MODES_RECORDABLE
 from kitbench.recording.recorder import MCAP_DIR, RecordConfig, record
 from kitbench.recording.summary import folder_size
@@ -167,7 +168,7 @@ def print_sizes(task: str, modes: list[str], episodes: int, root: Path) -> None:
         try:
             r = recording_sizes(task, mode, episodes, root)
         except Exception as exc:  # noqa: BLE001 - one mode that cannot record should not hide the others' sizes
-            print(f"  {mode:<24} recording failed: {type(exc).__name__}: {exc}", flush=True)
+            print(f"  {mode:<24} recording failed: {one_line(exc)}", flush=True)
             continue
         note = ""
         if abs(r["dataset_mib_with_mcap"] - r["dataset_mib"]) > 0.01 * max(r["dataset_mib"], 1e-9):

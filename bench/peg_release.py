@@ -33,7 +33,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.open_loop import parse_seeds  # noqa: E402
-from kitbench.errors import KitbenchError  # noqa: E402
+from kitbench.errors import KitbenchError, one_line  # noqa: E402
 
 TASK = "LiftPegUpright-v1"
 GRASP_READ = 3  # steps after the grasp began at which the hand's place along the peg is read
@@ -180,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
 
         rows, robot = measure(args.policy, seeds, args.robot, dict(parse_option(o) for o in args.policy_option))
     except (KitbenchError, OSError, ValueError) as exc:
-        print(f"peg_release: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        print(f"peg_release: error: {one_line(exc, typed=False)}", file=sys.stderr)
         return 2
     print(f"{args.policy} on {TASK} ({robot}):")
     print_rows(rows)

@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 import kitbench
+from kitbench.errors import one_line
 from kitbench.sim.scene import SimConfig
 
 REFERENCE = {"LiftPegUpright-v1": "289 (state, joint delta), 171 (ee delta pose), 19 (rgb)"}
@@ -117,7 +118,7 @@ def missing_model(task: str, robot: str) -> str | None:
     try:
         gym.make(f"kitbench/{task}", robot_uids=robot).close()
     except RuntimeError as exc:
-        return str(exc).splitlines()[0]
+        return one_line(exc, typed=False)
     return None
 
 

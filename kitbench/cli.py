@@ -40,9 +40,10 @@ def _print_summary(config, summary) -> int:
 
 def _record(flags: dict) -> int:
     from kitbench.recording.recorder import recipe_or_flags, record
+    from kitbench.shipped import find
 
     recipe = flags.pop("recipe", None)
-    config = recipe_or_flags(Path(recipe) if recipe else None, flags)
+    config = recipe_or_flags(find(recipe, "recipe") if recipe else None, flags)
     return _print_summary(config, record(config))
 
 
@@ -75,7 +76,10 @@ def _view(flags: dict) -> int:
 def _eval(flags: dict) -> int:
     from kitbench.evaluation.config import eval_config
     from kitbench.evaluation.runner import run_eval, summary_lines
+    from kitbench.shipped import find
 
+    if flags.get("suite_file"):  # a shipped suite by its name, or its checkout path from any folder
+        flags["suite_file"] = find(flags["suite_file"], "suite")
     config = eval_config(flags)
     report = run_eval(config)
     print("\n".join(summary_lines(report, config.out)))

@@ -18,8 +18,7 @@ from kitbench.config.checks import non_negative_int, positive_int
 from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, canonical_task, make_env
-
-ROOT = Path(__file__).resolve().parents[1]
+from kitbench.shipped import ROOT
 
 
 @dataclass
@@ -130,12 +129,16 @@ def command_path(name: str) -> str:
     """How to run this environment's console script `name` as printed: its bare name when the shell finds this
     one, else its path (relative to the working folder when inside it), e.g. `.venv/bin/lerobot-train`."""
     here = Path(sys.executable).parent / name
-    if shutil.which(name) == str(here):
-        return name
+    return name if shutil.which(name) == str(here) else shown(here)
+
+
+def shown(path: Path) -> str:
+    """`path` as printed in a command: relative to the working folder when inside it, else whole (a shipped file
+    of an installed kitbench lies in its package)."""
     try:
-        return str(here.relative_to(Path.cwd()))
+        return str(path.relative_to(Path.cwd()))
     except ValueError:
-        return str(here)
+        return str(path)
 
 
 def cuda_available() -> bool:
@@ -199,7 +202,7 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
         published=published,
         minutes=minutes,
         record=[kitbench, "record", str(recipe)],
-        train=[train, f"--config_path={config.relative_to(ROOT)}", f"--output_dir={train_dir}"],
+        train=[train, f"--config_path={shown(config)}", f"--output_dir={train_dir}"],
         train_env={"OMP_NUM_THREADS": threads},
         score=[kitbench, "eval", "--suite", str(suite), "--policy", f"lerobot:{train_dir}"],
         reproduce=[kitbench, "reproduce", name],

@@ -14,6 +14,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from kitbench.errors import one_line
+
 SOFTWARE_RENDERERS = ("llvmpipe", "lavapipe", "swiftshader", "softpipe")
 PACKAGES = ("kitbench", "sapien", "mujoco", "mink", "torch", "lerobot", "gymnasium", "mcap")
 
@@ -56,7 +58,7 @@ def check_vulkan() -> Check:
         device = sapien.render.RenderSystem().device
         name = device.name
     except Exception as exc:  # noqa: BLE001 - any failure here means "cannot render"
-        return Check("vulkan", False, f"{type(exc).__name__}: {exc}", fix)
+        return Check("vulkan", False, one_line(exc), fix)
     kind = "CPU software renderer" if any(s in name.lower() for s in SOFTWARE_RENDERERS) else "GPU"
     return Check("vulkan", True, f"{name} ({kind})")
 
@@ -112,7 +114,7 @@ def check_video_decoding() -> Check:
     except FileNotFoundError:
         return Check("video", False, "ffmpeg not found", fix)
     except Exception as exc:  # noqa: BLE001 - any failure here means "cannot decode"
-        return Check("video", False, f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", fix)
+        return Check("video", False, one_line(exc), fix)
     return Check("video", n == 5, f"ffmpeg + torchcodec decode ok ({n} frames)", fix)
 
 

@@ -18,6 +18,15 @@ def check_choice(kind: str, value: object, choices) -> None:
         raise KitbenchError(f"unknown {kind} {value!r}; valid choices: {', '.join(map(str, choices))}")
 
 
+def one_line(exc: BaseException, typed: bool = True) -> str:
+    """An exception as one line: its type and its message's first line (`typed=False`: the line alone), or its type
+    alone when the message is empty."""
+    lines = str(exc).strip().splitlines()
+    if not lines:
+        return type(exc).__name__
+    return f"{type(exc).__name__}: {lines[0]}" if typed else lines[0]
+
+
 def report_in_one_line(program: str) -> None:
     """Have an uncaught `KitbenchError` print as the one line it is (`<program>: error: ...`) instead of a traceback,
     in a program kitbench does not run itself (lerobot-train and lerobot-eval, through the plugin); the process

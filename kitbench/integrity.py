@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, one_line
 from kitbench.metadata import (
     CARRIER,
     EPISODES_FILE,
@@ -77,12 +77,7 @@ def _json(path: Path) -> Any:
     except FileNotFoundError:
         raise Damage(path, "missing") from None
     except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise Damage(path, f"unreadable ({_first_line(exc)})") from None
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
+        raise Damage(path, f"unreadable ({one_line(exc, typed=False)})") from None
 
 
 def _require(path: Path, data: dict, key: str, kind: type, check: Callable[[Any], bool]) -> Any:
@@ -150,7 +145,7 @@ def _parquet(path: Path, columns: list[str], whole: bool = False) -> tuple[Any, 
             out[c] = np.asarray([np.ravel(v)[0] for v in values]) if values.dtype == object else values
         return schema, out
     except (OSError, ValueError, IndexError, pa.ArrowException) as exc:
-        raise Damage(path, f"unreadable ({_first_line(exc)})") from None
+        raise Damage(path, f"unreadable ({one_line(exc, typed=False)})") from None
 
 
 def _tasks(root: Path, info: dict) -> dict[int, str]:
@@ -384,7 +379,7 @@ def _check_video(path: Path, last_frame: float) -> None:
                 if frame.pts is not None and float(frame.pts * base) >= last_frame - 1e-3:
                     return
     except (av.FFmpegError, OSError, IndexError, ValueError) as exc:
-        raise Damage(path, f"unreadable ({_first_line(exc)})") from None
+        raise Damage(path, f"unreadable ({one_line(exc, typed=False)})") from None
     raise Damage(path, f"ends before {last_frame:.3f} s, the last frame its episodes need")
 
 
@@ -413,7 +408,7 @@ def _kitbench(root: Path, info: dict, episodes: dict[str, np.ndarray], data: dic
             recording = RecordingInfo.from_json(raw)
             recording.validate()
         except (KitbenchError, TypeError, ValueError) as exc:
-            raise Damage(settings_path, _first_line(exc), remedy) from None
+            raise Damage(settings_path, one_line(exc, typed=False), remedy) from None
         carried = carried_settings(info)
         if carried is not None:
             mine = recording.carried()
@@ -468,7 +463,7 @@ def _episode_file(
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
-        raise Damage(path, f"unreadable ({_first_line(exc)})", remedy) from None
+        raise Damage(path, f"unreadable ({one_line(exc, typed=False)})", remedy) from None
     digest = None if recording is None else recording.episodes_sha256
     if digest is not None and episodes_digest(text.encode()) != digest:
         raise Damage(path, f"was changed after kitbench wrote it (its digest in {RECORDING_FILE} differs)", remedy)
@@ -483,7 +478,7 @@ def _episode_file(
             lines.append(EpisodeInfo.from_json(entry))
             lines[-1].validate()
         except (TypeError, ValueError, KitbenchError) as exc:
-            raise Damage(path, f"line {number}: {_first_line(exc)}", remedy) from None
+            raise Damage(path, f"line {number}: {one_line(exc, typed=False)}", remedy) from None
     if len(lines) != len(episodes.get("length", [])) or [e.episode_index for e in lines] != list(range(len(lines))):
         return  # stale after an in-place LeRobot tool: kitbench reads each episode's facts from the data instead
     success = data.get("next.success")

@@ -6,7 +6,9 @@ records the config's recipe with the published number of demonstrations (`kitben
 with stock `lerobot-train --config_path=policies/<config>.json` (torch on the published runs' threads, else the
 cores the config's loader workers leave), showing its progress as it goes, and scores the last checkpoint with
 `kitbench eval` on the published suites: the training and scoring `bench/learnability.py` runs
-(`kitbench.training.run`), so a killed reproduction started again reuses what finished. The verdict compares the
+(`kitbench.training.run`), so a killed reproduction started again reuses what finished, and a finished training
+of another request (`--steps`, `--seed`, the threads, the data) is refused before anything runs unless
+`--overwrite`. The verdict compares the
 run's rate with the 95% prediction interval of a new training seed (`stats.prediction_interval`: this run's
 sampling error, the published figure's, and the spread between its training seeds), not with the pooled
 figure's own interval, which is narrower than any single run's. Training minutes are printed beside the published
@@ -24,8 +26,8 @@ from pathlib import Path
 from kitbench.config.checks import optional, positive_int, seed as seed_check
 from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError, check_choice
+from kitbench.shipped import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 PUBLISHED = ROOT / "policies" / "published.toml"
 THREADS_VAR = "OMP_NUM_THREADS"
 
@@ -111,6 +113,8 @@ class ReproduceConfig:
     workers: int = setting(1, check=positive_int)
     # A published-figures file.
     published: Path = setting(PUBLISHED, show_default=False)
+    # Replace a finished training of another request (steps, seed, threads, data) in --out.
+    overwrite: bool = setting(False)
 
     def __post_init__(self) -> None:
         self.config = self.config.removesuffix(".json").rsplit("/", 1)[-1]
@@ -152,25 +156,19 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
     say(f"reproducing {config.config}: {demos} demonstrations from {entry.recipe.name}, training seed {seed}")
     recipe = load_recipe(entry.recipe, episodes=demos, out=data, workers=config.workers)
     recipe = recipe.replace(resume=data.exists(), mcap=False)
+    threads = run.train_threads(config_path, entry.threads)
+    data_stamp = json.dumps(recipe.info().to_json(), sort_keys=True) + f"|{demos}"
+    training = run.Training(config_path, data, policy_dir, threads, config.steps, seed, data_stamp=data_stamp)
+    run.check_replace(training, config.overwrite)  # before the recording: a refusal costs nothing
     summary = record(recipe)
     if summary.exit_code != 0:
         return summary.exit_code
-    threads = run.train_threads(config_path, entry.threads)
     here = reference_seconds(int(threads))
-    command = run.train_command(config_path, data, policy_dir / "train", config.steps, seed)
-    say(f"training: {run.shell_line(command, {run.THREADS_VAR: threads})}")
+    request = training.request()
+    say(f"training: {run.shell_line(request['command'], request['env'])}")
     say(f"  its log: {policy_dir / 'train.log'}")
     try:
-        trained = run.train(
-            config_path,
-            data,
-            policy_dir,
-            threads=threads,
-            steps=config.steps,
-            seed=seed,
-            data_stamp=json.dumps(recipe.info().to_json(), sort_keys=True) + f"|{demos}",
-            progress=True,
-        )
+        trained = run.train(training, progress=True, overwrite=config.overwrite)
     except run.CommandFailed as exc:
         raise KitbenchError(f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}") from None
     minutes = trained["seconds"] / 60
@@ -193,7 +191,7 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
             workers=config.workers,
         )
         try:
-            report, _ = run.evaluate(command, out)
+            report, _ = run.evaluate(command, out, trained["stamp"])
         except run.CommandFailed as exc:
             raise KitbenchError(
                 f"kitbench eval failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}"

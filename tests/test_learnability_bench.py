@@ -107,3 +107,34 @@ def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_p
     assert again.stdout.count("s as it ended") == 2  # the stamp keeps what the training's end measured
     rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
     assert len(rows) == 8 and all(r["train_reused"] for r in rows[4:])
+
+
+def test_a_finished_training_is_refused_before_anything_is_recorded_unless_overwrite(tmp_path, monkeypatch, capsys):
+    import bench.learnability as learnability
+    from kitbench.training import run
+
+    run_dir = tmp_path / "out" / "lift_peg_upright_state_d2"
+    finished = run_dir / "act" / "train" / "checkpoints" / "last" / "pretrained_model"
+    finished.mkdir(parents=True)
+    (finished / "model.safetensors").write_bytes(b"weights")
+    (run_dir / "act" / run.TRAIN_STAMP).write_text(json.dumps({"request": {"command": ["lerobot-train"]}}))
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+
+    def nothing_runs(command, log, env=None, follow=None):
+        raise AssertionError(f"ran {command}")
+
+    monkeypatch.setattr(run, "run_logged", nothing_runs)
+    argv = ["learnability.py", "--task", TASK, "--demos", "2", "--out", str(tmp_path / "out")]
+    monkeypatch.setattr(sys, "argv", argv)
+    assert learnability.main() == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured.err
+    assert captured.err.startswith(f"learnability: error: {run_dir / 'act' / 'train'} holds a finished training")
+    assert "pass --overwrite to replace it, or another --out to keep it" in captured.err
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+
+    # --overwrite goes on to record (here: the stand-in refuses to run anything)
+    monkeypatch.setattr(sys, "argv", [*argv, "--overwrite"])
+    monkeypatch.setattr(learnability, "reference_seconds", lambda threads: 1.0)
+    with pytest.raises(AssertionError, match=r"kitbench', 'record'"):
+        learnability.main()

@@ -5,6 +5,7 @@ the recipe that writes its dataset; bad input is one line with nothing written."
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
@@ -106,30 +107,130 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch,
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_finished_training_is_replaced_only_with_a_line_saying_what_changed(tmp_path, capsys, monkeypatch):
+def _finished(policy_dir: Path, training) -> bytes:
+    """A finished training of `training` in `policy_dir`, as `run.train` leaves one; its weights' bytes."""
     from kitbench.training import run
 
-    policy_dir, data = tmp_path / "act_seed1000", tmp_path / "data"
-    config = ROOT / "policies" / f"{CONFIG}.json"
-    finished = policy_dir / "train" / "checkpoints" / "last" / "pretrained_model"
+    finished = training.train_dir / "checkpoints" / "last" / "pretrained_model"
     finished.mkdir(parents=True)
-    (finished / "model.safetensors").write_bytes(b"")
-    command = run.train_command(config, data, policy_dir / "train", None, 1000)
-    request = {"command": command, "env": {"OMP_NUM_THREADS": "2"}, "data": run.hashlib.sha256(b"d").hexdigest()}
-    (policy_dir / "train_done.json").write_text(json.dumps({"request": request, "trained": {"seconds": 1.0}}))
+    weights = b"the published seed's weights"
+    (finished / "model.safetensors").write_bytes(weights)
+    stamp = {"request": training.request(), "trained": {"seconds": 1.0, "steps": 7}}
+    (policy_dir / run.TRAIN_STAMP).write_text(json.dumps(stamp))
+    return weights
 
-    assert run.train(config, data, policy_dir, threads="2", seed=1000, data_stamp="d")["reused"] is True
-    assert capsys.readouterr().err == ""
 
-    def stop(*args, **kwargs):
-        raise RuntimeError("not trained in this test")
+def _trained_here(monkeypatch) -> list[list[str]]:
+    """lerobot-train stood in for: each command it is asked to run, and a checkpoint where it would write one."""
+    from kitbench.training import run
 
-    monkeypatch.setattr(run, "run_logged", stop)
-    with pytest.raises(RuntimeError):
-        run.train(config, data, policy_dir, threads="1", seed=2000, data_stamp="d")
+    commands: list[list[str]] = []
+
+    def fake_train(command, log, env=None, follow=None):
+        commands.append(command)
+        out = Path(next(a for a in command if a.startswith("--output_dir=")).split("=", 1)[1])
+        model = out / "checkpoints" / "last" / "pretrained_model"
+        model.mkdir(parents=True)
+        (model / "model.safetensors").write_bytes(b"new weights")
+        (model / "train_config.json").write_text(json.dumps({"steps": 3, "seed": 2000}))
+        log.write_text("num_total_params=5\n")
+        return 2.0
+
+    monkeypatch.setattr(run, "run_logged", fake_train)
+    monkeypatch.setattr(run, "reference_seconds", lambda threads: 1.0)
+    return commands
+
+
+def test_a_different_request_never_replaces_a_finished_training(tmp_path, monkeypatch):
+    from kitbench.training import run
+
+    policy_dir, data = tmp_path / "seed1000", tmp_path / "data"
+    config = ROOT / "policies" / f"{CONFIG}.json"
+    published = run.Training(config, data, policy_dir, "2", seed=1000, data_stamp="d")
+    weights = _finished(policy_dir, published)
+    commands = _trained_here(monkeypatch)
+    assert run.train(published)["reused"] is True
+
+    for other, change, remedy in (
+        (
+            run.Training(config, data, policy_dir, "1", seed=2000, data_stamp="d"),
+            "OMP_NUM_THREADS 2 -> 1; arguments --seed=1000 -> --seed=2000",
+            "pass --overwrite to replace it, or another --out to keep it",
+        ),
+        # the cost of seed 1000's checkpoint: an unset OMP_NUM_THREADS chose another thread count
+        (
+            run.Training(config, data, policy_dir, "1", seed=1000, data_stamp="d"),
+            "OMP_NUM_THREADS 2 -> 1",
+            "run with OMP_NUM_THREADS=2 to reuse it, or pass --overwrite",
+        ),
+        (run.Training(config, data, policy_dir, "2", seed=1000, data_stamp="e"), "the data it trained on", "--out"),
+    ):
+        with pytest.raises(run.FinishedTraining) as refused:
+            run.train(other)
+        message = str(refused.value)
+        assert "\n" not in message and message.startswith(f"{policy_dir / 'train'} holds a finished training")
+        assert f"of another request ({change}); " in message and remedy in message, message
+    assert commands == []  # nothing was trained, and nothing lost
+    assert (published.train_dir / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").read_bytes() == (
+        weights
+    )
+    assert json.loads((policy_dir / run.TRAIN_STAMP).read_text())["request"] == published.request()
+
+
+def test_overwrite_replaces_a_finished_training_and_its_reports_are_made_again(tmp_path, monkeypatch, capsys):
+    from kitbench.training import run
+
+    policy_dir, data = tmp_path / "seed1000", tmp_path / "data"
+    config = ROOT / "policies" / f"{CONFIG}.json"
+    _finished(policy_dir, run.Training(config, data, policy_dir, "2", seed=1000, data_stamp="d"))
+    out = tmp_path / "eval_lift_peg_upright"
+    out.mkdir()
+    (out / run.REPORT_JSON).write_text(json.dumps({"success": "the old checkpoint's"}))
+    command = ["kitbench", "eval", "--policy", f"lerobot:{policy_dir / 'train'}"]
+    out.with_name(out.name + ".request.json").write_text(json.dumps(command))
+    commands = _trained_here(monkeypatch)
+
+    other = run.Training(config, data, policy_dir, "2", seed=2000, data_stamp="d")
+    trained = run.train(other, overwrite=True)
+    assert trained["reused"] is False and len(commands) == 1 and "--seed=2000" in commands[0]
+    model = other.train_dir / "checkpoints" / "last" / "pretrained_model" / "model.safetensors"
+    assert model.read_bytes() == b"new weights"
+    assert json.loads((policy_dir / run.TRAIN_STAMP).read_text())["request"] == other.request()
     said = capsys.readouterr().err.strip().splitlines()
-    change = "OMP_NUM_THREADS 2 -> 1; arguments --seed=1000 -> --seed=2000"
-    assert said == [f"retraining {policy_dir / 'train'} (its finished training differs: {change})"]
+    assert said == [f"replacing {other.train_dir} (--overwrite; it differs: arguments --seed=1000 -> --seed=2000)"]
+
+    # the same command scores another checkpoint now: the report made before it finished is not reused
+    os.utime(out / run.REPORT_JSON, (1, 1))
+
+    def fake_eval(command, log, env=None, follow=None):
+        (out / run.REPORT_JSON).write_text(json.dumps({"success": "the new checkpoint's"}))
+        return 1.0
+
+    monkeypatch.setattr(run, "run_logged", fake_eval)
+    assert run.evaluate(command, out, trained["stamp"]) == ({"success": "the new checkpoint's"}, False)
+    assert run.evaluate(command, out, trained["stamp"]) == ({"success": "the new checkpoint's"}, True)
+
+
+def test_reproduce_refuses_to_train_over_a_finished_training_before_it_records(tmp_path, monkeypatch, capsys):
+    from kitbench.recording import recorder
+    from kitbench.training import run
+
+    out = tmp_path / "run"
+    policy_dir = out / "seed1000"
+    config = ROOT / "policies" / f"{CONFIG}.json"
+    weights = _finished(policy_dir, run.Training(config, out / "data", policy_dir, "1", seed=1000, data_stamp="d"))
+
+    def no_recording(*args, **kwargs):
+        raise AssertionError("recorded before the refusal")
+
+    monkeypatch.setattr(recorder, "record", no_recording)
+    assert cli.main(["reproduce", CONFIG, "--steps", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("kitbench reproduce: error: ")
+    assert "holds a finished training of another request (" in err and "--steps=2" in err
+    assert "pass --overwrite to replace it, or another --out to keep it" in err
+    model = policy_dir / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors"
+    assert model.read_bytes() == weights and sorted(p.name for p in out.iterdir()) == ["seed1000"]
 
 
 def test_an_unpublished_config_trains_on_the_threads_its_kind_was_measured_fastest_on(monkeypatch):

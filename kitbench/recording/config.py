@@ -16,7 +16,7 @@ from kitbench.engine.config import ExecutorConfig
 from kitbench.env_settings import EnvSettings
 from kitbench.envs.modes import camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, one_line
 from kitbench.metadata import ACTION_CONVENTION, RECORDING_FILE, RecordingInfo, expert_options
 from kitbench.policies.lerobot_policy import parse_option
 from kitbench.recording.features import RGB_STORAGES
@@ -51,9 +51,8 @@ def _repo_id(name: str, value: object) -> None:
         validate_repo_id(str(value))
     except HFValidationError as exc:
         # the hub's message ends by quoting the id and may advise on an argument the command line does not have
-        reason = (
-            str(exc).splitlines()[0].replace(f": '{value}'", "").replace(" Use `repo_type` argument if needed.", "")
-        )
+        reason = one_line(exc, typed=False).replace(f": '{value}'", "")
+        reason = reason.replace(" Use `repo_type` argument if needed.", "")
         raise KitbenchError(f"invalid repo_id {value!r}: {reason[:1].lower()}{reason[1:]}") from None
 
 

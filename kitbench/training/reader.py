@@ -41,6 +41,22 @@ from kitbench.training.frames import FrameCache, Layout, cache_key, decode_jobs,
 log = logging.getLogger(__name__)
 
 ENABLE = "KITBENCH_FAST_READER"
+# The attributes of lerobot's `DatasetReader` that `Source` takes, by its field: most are private, which a lerobot
+# release may move (FastReader also reads `_absolute_to_relative_idx` and `_image_transforms`);
+# tests/test_lerobot_coupling.py compares every one with the installed lerobot.
+READER_ATTRIBUTES = {
+    "meta": "_meta",
+    "root": "root",
+    "hf_dataset": "hf_dataset",
+    "episodes": "episodes",
+    "delta_indices": "delta_indices",
+    "video_backend": "_video_backend",
+    "tolerance_s": "_tolerance_s",
+    "return_uint8": "_return_uint8",
+    "depth_output_unit": "_depth_output_unit",
+    "depth_encoders": "_depth_encoder_configs",
+    "image_depth_units": "_image_depth_units",
+}
 # Columns held per process: past this (point clouds of many episodes), stock's reader serves the dataset.
 COLUMN_BUDGET = 1 << 30
 
@@ -108,20 +124,8 @@ class FastReader(DatasetReader):
     def _build_fast_path(self) -> _FastPath | None:
         if not enabled() or self.hf_dataset is None or not is_kitbench_recording(self.root):
             return None
-        source = Source(
-            meta=self._meta,
-            root=Path(self.root),
-            hf_dataset=self.hf_dataset,
-            episodes=self.episodes,
-            delta_indices=self.delta_indices,
-            filtered=self._absolute_to_relative_idx is not None,
-            video_backend=self._video_backend,
-            tolerance_s=self._tolerance_s,
-            return_uint8=self._return_uint8,
-            depth_output_unit=self._depth_output_unit,
-            depth_encoders=self._depth_encoder_configs,
-            image_depth_units=self._image_depth_units,
-        )
+        stock = {field: getattr(self, name) for field, name in READER_ATTRIBUTES.items()}
+        source = Source(**{**stock, "root": Path(self.root)}, filtered=self._absolute_to_relative_idx is not None)
         try:
             return _FastPath(source)
         except UnsupportedColumn as exc:

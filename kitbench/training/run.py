@@ -5,8 +5,10 @@ code `kitbench reproduce` and `bench/learnability.py` both run, so that their mi
 with its output in a log, shows its progress while it runs (the steps lerobot has done, its loss, the time left),
 times it (wall clock, and lerobot's own loop from its log), and times the machine's reference workload as it ends;
 a checkpoint whose training finished with the same command on the same data is reused (its stamp, written last,
-says so), so a killed run started again picks up where it stopped. `evaluate` runs `kitbench eval` of the
-checkpoint on a suite, reusing a report the same command wrote.
+says so), so a killed run started again picks up where it stopped. A finished training is never replaced by
+another request unless the caller says `overwrite` (`--overwrite`): it is refused in one line naming what differs,
+as lerobot-train refuses an existing output folder. `evaluate` runs `kitbench eval` of the checkpoint on a suite,
+reusing a report the same command wrote after the checkpoint's training finished.
 """
 
 from __future__ import annotations
@@ -22,9 +24,11 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
+from kitbench.errors import KitbenchError
 from kitbench.training.reference import reference_seconds
 
 BIN = Path(sys.executable).parent  # the venv's console scripts, whichever way Python was started
@@ -36,6 +40,10 @@ REPORT_JSON = "report.json"
 # lerobot-train's tqdm bar ("Training:  41%|...| 1013/2500 [...]") and its log lines ("step:1K ... loss:0.094")
 _BAR = re.compile(rb"(\d+)/(\d+) \[")
 _LOSS = re.compile(rb" loss:([\d.]+)")
+
+
+class FinishedTraining(KitbenchError):
+    """A finished training in the folder a different request would train into: kept, not replaced."""
 
 
 class CommandFailed(Exception):
@@ -201,46 +209,86 @@ def request_change(before: dict, now: dict) -> str:
     return "; ".join(changes) or "the request's format"
 
 
-def train(
-    config: Path,
-    data: Path,
-    policy_dir: Path,
-    *,
-    threads: str,
-    steps: int | None = None,
-    seed: int | None = None,
-    extra: tuple = (),
-    data_stamp: str = "",
-    progress: bool = False,
-) -> dict:
-    """Train `config` on `data` into `policy_dir`/train (its log: `policy_dir`/train.log), or reuse a checkpoint
-    the same command trained on the same data (`data_stamp`: what identifies the data). `progress`: show the
-    training's steps as they come."""
-    train_dir = policy_dir / "train"
-    command = train_command(config, data, train_dir, steps, seed, extra)
+TRAIN_STAMP = "train_done.json"
+
+
+@dataclass(frozen=True)
+class Training:
+    """One training: `config` on `data` into `policy_dir`/train (its log: `policy_dir`/train.log), on `threads`
+    torch threads; `steps` and `seed` over the config's, `extra` lerobot-train flags on top, `data_stamp` what
+    identifies the data."""
+
+    config: Path
+    data: Path
+    policy_dir: Path
+    threads: str
+    steps: int | None = None
+    seed: int | None = None
+    extra: tuple = ()
+    data_stamp: str = ""
+
+    @property
+    def train_dir(self) -> Path:
+        return self.policy_dir / "train"
+
+    def request(self) -> dict:
+        """What identifies it: the lerobot-train command, the variables it runs with, and the data's digest. A
+        finished training of the same request is reused."""
+        command = train_command(self.config, self.data, self.train_dir, self.steps, self.seed, self.extra)
+        digest = hashlib.sha256(self.data_stamp.encode()).hexdigest()
+        return {"command": command, "env": {THREADS_VAR: self.threads}, "data": digest}
+
+
+def finished_request(policy_dir: Path) -> dict | None:
+    """The request of the finished training in `policy_dir` (its stamp, written after its last checkpoint), or None
+    when none finished there."""
+    stamp = policy_dir / TRAIN_STAMP
+    checkpoint = policy_dir / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors"
+    if not (stamp.is_file() and checkpoint.is_file()):
+        return None
+    return json.loads(stamp.read_text()).get("request", {})
+
+
+def check_replace(training: Training, overwrite: bool = False) -> None:
+    """Refuse, in one line naming what differs and what to do, to run `training` over a finished training of
+    another request, unless `overwrite`: callers check before they record, so nothing runs first."""
+    before, request = finished_request(training.policy_dir), training.request()
+    if before is None or before == request or overwrite:
+        return
+    remedy = "pass --overwrite to replace it, or another --out to keep it"
+    env = before.get("env") or {}
+    if {k: before.get(k) for k in ("command", "data")} == {k: request[k] for k in ("command", "data")} and env:
+        # only the variables differ (an unset OMP_NUM_THREADS): the same ones reuse it
+        remedy = f"run with {' '.join(f'{k}={shlex.quote(str(v))}' for k, v in env.items())} to reuse it, or {remedy}"
+    raise FinishedTraining(
+        f"{training.train_dir} holds a finished training of another request ({request_change(before, request)}); "
+        f"{remedy}"
+    )
+
+
+def train(training: Training, *, progress: bool = False, overwrite: bool = False) -> dict:
+    """Run `training`, or reuse the checkpoint the same request trained. A finished training of another request
+    is `FinishedTraining` unless `overwrite`; an unfinished one is trained again. `progress`: show the training's
+    steps as they come."""
+    policy_dir, train_dir, threads = training.policy_dir, training.train_dir, training.threads
+    request = training.request()
+    command, env = request["command"], request["env"]
     log = policy_dir / "train.log"
-    env = {THREADS_VAR: threads}
-    stamp = policy_dir / "train_done.json"
-    request = {"command": command, "env": env, "data": hashlib.sha256(data_stamp.encode()).hexdigest()}
+    stamp = policy_dir / TRAIN_STAMP
     checkpoint = train_dir / "checkpoints" / "last" / "pretrained_model"
-    if stamp.is_file() and (checkpoint / "model.safetensors").is_file():
-        done = json.loads(stamp.read_text())
-        if done.get("request") == request:
-            return {**done["trained"], "dir": train_dir, "reused": True}
-        # a finished training is replaced: say why, since an unset OMP_NUM_THREADS alone retrains it
-        change = request_change(done.get("request", {}), request)
-        print(
-            f"retraining {train_dir} (its finished training differs: {change})",
-            file=sys.stderr,
-            flush=True,
-        )
+    before = finished_request(policy_dir)
+    if before == request:
+        return {**json.loads(stamp.read_text())["trained"], "dir": train_dir, "reused": True, "stamp": stamp}
+    check_replace(training, overwrite)
+    if before is not None:  # --overwrite: say what is replaced
+        print(f"replacing {train_dir} (--overwrite; it differs: {request_change(before, request)})", file=sys.stderr)
     stamp.unlink(missing_ok=True)
     if train_dir.exists():  # lerobot-train refuses an existing output folder
         shutil.rmtree(train_dir)
     follow = None
     if progress:
-        total = steps or json.loads(Path(config).read_text()).get("steps", 0)
-        follow = TrainingProgress(int(total), f"train {Path(config).stem}")
+        total = training.steps or json.loads(Path(training.config).read_text()).get("steps", 0)
+        follow = TrainingProgress(int(total), f"train {Path(training.config).stem}")
     try:
         seconds = run_logged(command, log, env, follow)
     finally:
@@ -265,7 +313,7 @@ def train(
         "reference_after": reference_after,
     }
     stamp.write_text(json.dumps({"request": request, "trained": {**trained, "dir": str(train_dir)}}, indent=1) + "\n")
-    return {**trained, "reused": False}
+    return {**trained, "reused": False, "stamp": stamp}
 
 
 def eval_command(
@@ -294,12 +342,15 @@ def eval_command(
     return command
 
 
-def evaluate(command: list[str], out: Path) -> tuple[dict, bool]:
+def evaluate(command: list[str], out: Path, trained: Path | None = None) -> tuple[dict, bool]:
     """Run the `kitbench eval` command that writes its report in `out` (its log beside it), or reuse the report
-    the same command wrote; (report, reused)."""
+    the same command wrote after the training stamped `trained` finished; (report, reused)."""
     stamp = out.with_name(out.name + ".request.json")
-    if stamp.is_file() and (out / REPORT_JSON).is_file() and json.loads(stamp.read_text()) == command:
-        return json.loads((out / REPORT_JSON).read_text()), True
+    report = out / REPORT_JSON
+    # a checkpoint trained again (--overwrite) keeps its path, so the command alone cannot tell its reports apart
+    current = trained is None or (report.is_file() and report.stat().st_mtime >= trained.stat().st_mtime)
+    if stamp.is_file() and report.is_file() and current and json.loads(stamp.read_text()) == command:
+        return json.loads(report.read_text()), True
     stamp.unlink(missing_ok=True)
     run_logged(command, out.with_name(out.name + ".log"))
     stamp.write_text(json.dumps(command) + "\n")
