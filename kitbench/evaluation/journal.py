@@ -6,7 +6,7 @@ left and writes the report an uninterrupted run writes.
 - `eval.json`: what a resume must match (policy, checkpoint digests, execution settings, suite, versions) and the
   provenance of the run that started it (the report's), written once, durably (`recording.durable`).
 - `results.jsonl`: one line per finished job, in job order: `{"job": i, "seeds": [...], "results": [...]}`, each
-  result an `EpisodeResult` as the report lists it. Appended, flushed and fsync'd per job: a reader sees the
+  result an `EpisodeResult` as the report lists it. Appended, flushed and synced (fdatasync) per job: a reader sees the
   partial results while the run goes on. A line a power cut left torn, and the lines after it, are dropped and
   scored again.
 - `dataset.journal/`: with `--save-dataset`, each episode's frames (the recorder's `EpisodeJournal`), written
@@ -33,6 +33,11 @@ JOURNAL_DIR = "journal"
 SETTINGS_FILE = "eval.json"
 RESULTS_FILE = "results.jsonl"
 FORMAT = 1
+
+
+# An appended line needs its data and the file's new size on disk, not its times: fdatasync, a tenth of fsync's
+# cost on the machines measured (fsync where there is no fdatasync)
+_datasync = getattr(os, "fdatasync", os.fsync)
 
 
 class EvalJournal:
@@ -118,7 +123,7 @@ class EvalJournal:
         entry = {"job": job, "seeds": [r.seed for r in results], "results": [r.to_dict() for r in results]}
         self._file.write(json.dumps(entry).encode() + b"\n")
         self._file.flush()
-        os.fsync(self._file.fileno())
+        _datasync(self._file.fileno())
         faults.point("eval.journaled")
 
     def close(self) -> None:
