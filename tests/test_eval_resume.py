@@ -27,7 +27,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SHORT = ROOT / "eval" / "suites" / "lift_peg_upright_short.toml"
 EPISODES = 6
 FILMED = ("--videos", "1") if VULKAN else ()  # filming needs a render device (seconds a video), the scores do not
-ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": str(ROOT)}
+
+
+def _env() -> dict[str, str]:
+    """This process's environment (a Ray cluster's settings included) for a run of this checkout's kitbench."""
+    return {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": str(ROOT)}
 
 
 def _eval_args(*extra: str, episodes: int = EPISODES) -> list[str]:
@@ -48,7 +52,7 @@ def _eval_args(*extra: str, episodes: int = EPISODES) -> list[str]:
 
 def _run(folder: Path, args: list[str], fault: str | None = None) -> subprocess.CompletedProcess:
     folder.mkdir(parents=True, exist_ok=True)
-    env = dict(ENV)
+    env = _env()
     env.pop(faults.OWNER_VAR, None)
     if fault is not None:
         env[faults.VAR] = fault
@@ -98,31 +102,36 @@ def twins(tmp_path_factory) -> dict[str, Path]:
     return {name: base / name for name in flags}
 
 
-# case -> (twin, extra flags, the fault point the first run dies at)
+# case -> (twin, extra flags, the fault point the first run dies at, the episodes the resume reads back)
 CASES = {
-    "before the first episode": ("one", (), "eval.started"),
-    "the journal's settings half written": ("one", (), "journal.write:1"),
-    "after the first episode": ("one", (), "eval.journaled:1"),
-    "mid-suite": ("one", (), "eval.journaled:4"),
-    "every episode journaled, no report": ("one", (), "eval.scored"),
-    "the report written, no videos": ("filmed", FILMED, "eval.reported"),
-    "the report complete, the journal not yet deleted": ("filmed", FILMED, "eval.finishing"),
-    "batch size 4, after the first batch": ("batch", ("--batch-size", "4"), "eval.journaled:1"),
-    "batch size 4, the report written": ("batch", ("--batch-size", "4"), "eval.reported"),
-    "saving a dataset, mid-suite": ("save", ("--save-dataset", "ds"), "eval.journaled:3"),
-    "saving a dataset, its commit not in place": ("save", ("--save-dataset", "ds"), "commit.card:1"),
-    "saving a dataset, its commit in place": ("save", ("--save-dataset", "ds"), "commit.swapped:1"),
+    "before the first episode": ("one", (), "eval.started", 0),
+    "the journal's settings half written": ("one", (), "journal.write:1", 0),
+    "after the first episode": ("one", (), "eval.journaled:1", 1),
+    "mid-suite": ("one", (), "eval.journaled:4", 4),
+    "every episode journaled, no report": ("one", (), "eval.scored", EPISODES),
+    "the report written, no videos": ("filmed", FILMED, "eval.reported", EPISODES),
+    "the report complete, the journal not yet deleted": ("filmed", FILMED, "eval.finishing", EPISODES),
+    "batch size 4, after the first batch": ("batch", ("--batch-size", "4"), "eval.journaled:1", 4),
+    "batch size 4, the report written": ("batch", ("--batch-size", "4"), "eval.reported", EPISODES),
+    "saving a dataset, mid-suite": ("save", ("--save-dataset", "ds"), "eval.journaled:3", 3),
+    "saving a dataset, its commit not in place": ("save", ("--save-dataset", "ds"), "commit.card:1", EPISODES),
+    "saving a dataset, its commit in place": ("save", ("--save-dataset", "ds"), "commit.swapped:1", EPISODES),
 }
 
 
-@pytest.mark.parametrize(("twin", "extra", "fault"), CASES.values(), ids=CASES.keys())
+def _resumed(out: Path) -> int:
+    return json.loads((out / "report.json").read_text())["timing"]["resumed_episodes"]
+
+
+@pytest.mark.parametrize(("twin", "extra", "fault", "kept"), CASES.values(), ids=CASES.keys())
 def test_an_evaluation_killed_at_a_fault_point_resumes_into_the_uninterrupted_report(
-    tmp_path, twins, twin, extra, fault
+    tmp_path, twins, twin, extra, fault, kept
 ):
     _killed(tmp_path, _eval_args(*extra), fault)
     assert (tmp_path / "report" / "journal").is_dir()  # something to resume
     _ok(tmp_path, _eval_args(*extra, "--resume"))
     same_report(twins[twin] / "report", tmp_path / "report")
+    assert _resumed(tmp_path / "report") == kept  # what was journaled is not scored again
     if "--save-dataset" in extra:
         same_content(twins[twin] / "ds", tmp_path / "ds")
         no_leftovers(tmp_path / "ds")
@@ -133,6 +142,7 @@ def test_an_evaluation_killed_while_filming_resumes_into_the_uninterrupted_repor
     _killed(tmp_path, _eval_args(*FILMED), "eval.filmed:1")
     _ok(tmp_path, _eval_args(*FILMED, "--resume"))
     same_report(twins["filmed"] / "report", tmp_path / "report")
+    assert _resumed(tmp_path / "report") == EPISODES
     assert len(list((tmp_path / "report" / "videos").iterdir())) == 1
 
 
@@ -144,6 +154,7 @@ def test_a_torn_journal_line_is_scored_again(tmp_path, twins):
     results.write_bytes(b"".join(lines[:2]) + lines[2][:40])
     _ok(tmp_path, _eval_args("--resume"))
     same_report(twins["one"] / "report", tmp_path / "report")
+    assert _resumed(tmp_path / "report") == 2
 
 
 def test_sigterm_stops_in_one_line_and_the_run_resumes(tmp_path):
@@ -153,7 +164,7 @@ def test_sigterm_stops_in_one_line_and_the_run_resumes(tmp_path):
     _ok(tmp_path / "twin", args)
     folder = tmp_path / "stopped"
     folder.mkdir()
-    proc = subprocess.Popen(args, cwd=folder, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(args, cwd=folder, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     results = EvalJournal(folder / "report").results_path
     deadline = time.monotonic() + 300
     while proc.poll() is None and time.monotonic() < deadline:
@@ -167,6 +178,7 @@ def test_sigterm_stops_in_one_line_and_the_run_resumes(tmp_path):
     assert "--resume" in lines[-1] and "Traceback" not in stderr
     _ok(folder, [*args, "--resume"])
     same_report(tmp_path / "twin" / "report", folder / "report")
+    assert 2 <= _resumed(folder / "report") < 10
 
 
 # -- refusals ------------------------------------------------------------------------------------------
