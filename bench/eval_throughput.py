@@ -14,6 +14,10 @@ Workers start inside the scoring pass (imports, the model, render pipelines: sec
 workers lose to 1; the default 40 episodes keep start-up from dominating, hundreds measure scaling. "Ray overhead"
 is 1 - ray/local episodes/min at equal workers. A warm-up episode first pays what this process does once (importing
 matplotlib for the first report; with rgb, setting up the renderer), which the first cell would otherwise pay alone.
+
+`--journal-cost R`: only the journal's cost, measured in one run: the expert on state, local, one worker, R times
+with each finished episode journaled and fsync'd (as `kitbench eval` runs) and R times with the journal's appends
+skipped, alternating; prints the median episodes/s of the scoring pass of each and the difference.
 """
 
 from __future__ import annotations
@@ -21,14 +25,17 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import math
+import statistics
 import sys
 import tempfile
 import time
+from contextlib import contextmanager, nullcontext
 
 from throughput import counts, executor_label, names, start_ray, timed_engine
 
 from kitbench.evaluation import runner
 from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.journal import EvalJournal
 from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import adhoc_suite
 
@@ -51,6 +58,33 @@ def cell(task: str, policy: str, episodes: int, obs_mode: str, executor: str, wo
     }
 
 
+@contextmanager
+def unjournaled():
+    """Skip the journal's per-job append (what an evaluation cost before it had one)."""
+    saved = EvalJournal.add
+    EvalJournal.add = lambda self, job, results, episode=None: None  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        EvalJournal.add = saved  # type: ignore[method-assign]
+
+
+def journal_cost(task: str, episodes: int, rounds: int) -> None:
+    rates: dict[str, list[float]] = {"journaled": [], "unjournaled": []}
+    for _ in range(rounds):
+        for name in rates:
+            with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as out:
+                suite = adhoc_suite(task, episodes)
+                with unjournaled() if name == "unjournaled" else nullcontext():
+                    report = run_eval(EvalConfig.of(suite, "expert", out), progress=False)
+            rates[name].append(episodes / report["timing"]["scoring_seconds"])
+    medians = {name: statistics.median(r) for name, r in rates.items()}
+    for name, r in rates.items():
+        print(f"{name:<12} median {medians[name]:.2f} episodes/s (runs: {', '.join(f'{x:.2f}' for x in r)})")
+    cost = 1 - medians["journaled"] / medians["unjournaled"]
+    print(f"journaling costs {100 * cost:+.1f}% of the expert's episodes/s ({episodes} episodes, {rounds} rounds)")
+
+
 def _percent(value: float) -> str:
     return "–" if math.isnan(value) else f"{100 * value:+.0f}%"
 
@@ -64,9 +98,14 @@ def main() -> None:
     parser.add_argument("--no-rgb", action="store_true", help="skip the camera cells (no Vulkan device)")
     parser.add_argument("--executor", type=names(("local", "ray")), default=None, help="local,ray (default both)")
     parser.add_argument("--workers", type=counts, default=[1, 2], help="worker counts, e.g. 1,2")
+    parser.add_argument("--journal-cost", type=int, default=0, metavar="R", help="only the journal's cost, R rounds")
     args = parser.parse_args()
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
+    if args.journal_cost:
+        cell(args.task, "expert", 1, "state", "local", 1)  # warm-up
+        journal_cost(args.task, args.episodes, args.journal_cost)
+        return
     executors = args.executor or ["local", "ray"]
     if "ray" in executors and importlib.util.find_spec("ray") is None:
         hint = "" if args.executor else "; pass --executor local to skip the Ray cells"

@@ -5,7 +5,8 @@ such a moment every time. Unset, a pass costs one comparison.
 
 Only the process that read the variable first counts passes: spawned workers inherit the variable but not the
 plan's owner, so a point inside a worker never fires there. Every point is listed in `POINTS`, with the moment
-it marks; what a kill there costs is in docs/recording.md ("What a kill costs").
+it marks; what a kill there costs is in docs/recording.md ("What a kill costs") and, for `kitbench eval`, in
+docs/evaluation.md ("Resuming").
 """
 
 from __future__ import annotations
@@ -39,6 +40,13 @@ POINTS = {
     "shards.swapped": "the merged dataset in place, the shards still in the journal",
     "merge.aggregated": "kitbench merge: the inputs aggregated, the logs and metadata not yet added",
     "merge.retired": "kitbench merge --overwrite: the old dataset renamed aside, the new one not yet in place",
+    "eval.started": "kitbench eval: the journal holds the settings and provenance, nothing scored yet",
+    "eval.journaled": "kitbench eval: a job's scores (an episode, or a batch) durable in the journal, the next not "
+    "yet taken",
+    "eval.scored": "kitbench eval: every episode journaled, no report or dataset written yet",
+    "eval.reported": "kitbench eval: the report written without its videos, none filmed yet",
+    "eval.filmed": "kitbench eval: a video written, the report not yet listing it",
+    "eval.finishing": "kitbench eval: the report complete, the journal being deleted",
 }
 
 _plan: tuple[str, int] | None = None

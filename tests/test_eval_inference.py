@@ -18,6 +18,7 @@ import pytest
 
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.config import EvalConfig
+from kitbench.evaluation.report import without_timing
 from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import adhoc_suite
 from kitbench.recording.recorder import RecordConfig, record
@@ -69,15 +70,11 @@ def _kitbench_eval(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=300)
 
 
-def _without_timing(report: dict) -> dict:
-    return {k: v for k, v in report.items() if k not in ("timing", "output")}
-
-
 def test_batches_of_policies_that_act_alone_score_exactly_as_unbatched(tmp_path):
     one = _eval("LiftPegUpright-v1", "state", "expert", tmp_path / "b1", 1, "pd_joint_delta_pos")
     for size in (2, 3, 8):  # a last batch shorter than the others; a batch larger than the suite
         batched = _eval("LiftPegUpright-v1", "state", "expert", tmp_path / f"b{size}", size, "pd_joint_delta_pos")
-        assert _without_timing(batched) == _without_timing(one), size
+        assert without_timing(batched) == without_timing(one), size
         assert batched["timing"]["batch_size"] == size and batched["timing"]["device"] == "cpu"
     # the expert's episodes end at different steps, at success: finished episodes wait for their batch
     assert one["success"]["rate"] == 1.0 and len({e["length"] for e in one["per_episode"]}) > 1
@@ -100,7 +97,7 @@ def test_a_batched_network_scores_each_episode_as_unbatched(
     # contacts into the return's later digits (2.6% on one AssemblingKits seed over 200 steps, outcome unchanged).
     if policy == "diffusion":  # seeded by its batch's first seed: the same command, the same report
         again = _eval(task, obs_mode, spec, tmp_path / "b3again", 3)
-        assert _without_timing(again) == _without_timing(three)
+        assert without_timing(again) == without_timing(three)
 
     # each row of a batched call is that episode's own action: rows are not mixed up, whatever the batch
     seeds = [1_000_000 + i for i in range(3)]

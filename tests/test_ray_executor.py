@@ -261,6 +261,17 @@ def test_a_ray_recording_whose_driver_is_killed_at_a_fault_point_resumes_into_th
     no_leftovers(out)
 
 
+def test_an_evaluation_on_ray_whose_driver_is_killed_resumes_into_the_uninterrupted_report(cluster, tmp_path):
+    from tests.test_eval_resume import _eval_args, _killed, _ok, _resumed, same_report
+
+    on_ray = ("--executor", "ray", "--workers", "2", "--ray-address", cluster.address)
+    _ok(tmp_path / "twin", _eval_args(*on_ray))
+    _killed(tmp_path / "killed", _eval_args(*on_ray), "eval.journaled:3")
+    _ok(tmp_path / "killed", _eval_args(*on_ray, "--resume"))
+    same_report(tmp_path / "twin" / "report", tmp_path / "killed" / "report")
+    assert _resumed(tmp_path / "killed" / "report") == 3
+
+
 def _actor_pids() -> list[int]:
     """Processes of the kitbench Ray actors (Ray names them ray::_EpisodeWorker)."""
     listing = subprocess.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from kitbench.config.declare import setting
 from kitbench.errors import KitbenchError, check_choice
+from kitbench.evaluation.provenance import outcome_differences
 from kitbench.evaluation.report import REPORT_VERSION, group_table, write_json
 from kitbench.evaluation.significance import (
     UNPAIRED_TESTS,
@@ -249,6 +250,8 @@ class Comparison:
     differences: list[str]  # how the suites differ (empty when they do not)
     rows: list[Row]
     warnings: list[str] = field(default_factory=list)
+    # how the reports' provenance differs where that can change an outcome (execution settings, versions, driver)
+    provenance_differences: list[str] = field(default_factory=list)
 
     @property
     def headline(self) -> Row:
@@ -335,6 +338,9 @@ class Comparison:
                     for i, (c, w) in enumerate(zip(cells, widths, strict=True))
                 ).rstrip()
             )
+        if self.provenance_differences:
+            out += ["", "the reports ran differently in what can change an outcome (report.json's provenance):"]
+            out += [f"  {line}" for line in self.provenance_differences]
         out += [
             "",
             f"verdict column: p < alpha {self.alpha:g} by the headline test; fewer failures are better",
@@ -365,6 +371,7 @@ class Comparison:
             "unpaired_test": self.unpaired_test,
             "ci_method": "newcombe-paired" if self.paired else "newcombe-hybrid-score",
             "warnings": self.warnings,
+            "provenance_differences": self.provenance_differences,
             "verdict": {
                 "outcome": self.verdict,
                 "metric": "success",
@@ -599,4 +606,5 @@ def compare_reports(
         differences=differences,
         rows=rows,
         warnings=warnings,
+        provenance_differences=outcome_differences(a.get("provenance"), b.get("provenance")),
     )

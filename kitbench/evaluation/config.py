@@ -50,6 +50,9 @@ class ReportSettings:
     out: Path | None = setting(None)
     # Replace an existing report in --out (and --save-dataset's dataset).
     overwrite: bool = setting(False)
+    # Continue the evaluation a kill, a SIGTERM or a lost cluster stopped in --out, from its journal (the same
+    # policy, weights, settings and suite, or it is refused); the report equals an uninterrupted run's.
+    resume: bool = setting(False)
     # Episodes to film, failures and successes both.
     videos: int = setting(0, check=non_negative_int)
     # Also store the scored episodes as a LeRobot dataset in DIR (frames, actions, rewards, a dataset card).

@@ -1,7 +1,8 @@
 """From episode results to the report: the numbers (JSON), a readable page (Markdown) and where plots are.
 
-Everything in `report.json` except its `timing` section depends only on the policy and the suite, so two runs
-compare equal, whatever the number of workers.
+Everything in `report.json` except its `timing` section and its `provenance` (how and where it ran:
+`kitbench.evaluation.provenance`) depends only on the policy and the suite, so two runs compare equal, whatever
+the number of workers.
 
 `success` is the suite's headline metric (`headline`: `success_once` or `success_at_end`, see
 `kitbench.evaluation.suite`); both are reported beside it, overall and per group. A robustness suite adds
@@ -25,7 +26,8 @@ from kitbench.registration import task_entry
 # 2: `headline`, `success_once`, `success_at_end` (overall, per group, per episode), suite `settle_steps` and
 # `perturbations`, `robustness`
 # 3: per episode `initial` (the task's measurements after the reset); `measurements` (each at the start and the end)
-REPORT_VERSION = 3
+# 4: `provenance` (the weights, execution settings, suite digest, software, machine and command)
+REPORT_VERSION = 4
 
 
 def _timing_parts(timing: dict) -> str:
@@ -184,8 +186,9 @@ def group_table(report: dict) -> tuple[str, str, list[dict]] | None:
 
 
 def without_timing(report: dict) -> dict:
-    """The part of a report that must not change between runs (for comparing two evaluations)."""
-    return {k: v for k, v in report.items() if k not in ("timing", "output")}
+    """The part of a report that must not change between runs (for comparing two evaluations): its provenance
+    names the command, the machine and the batch size, which may differ while the scores do not."""
+    return {k: v for k, v in report.items() if k not in ("timing", "output", "provenance")}
 
 
 def write_json(report: dict, path: Path) -> None:
@@ -270,6 +273,47 @@ def _cameras_text(suite: dict) -> str:
 def _main_failure(categories: dict[str, int]) -> str:
     worst = max(categories.items(), key=lambda kv: kv[1], default=("", 0))
     return f"{worst[0]} ({worst[1]})" if worst[1] else "–"
+
+
+def _provenance_lines(found: dict) -> list[str]:
+    """The short provenance block of report.md (report.json has all of it)."""
+    lines = ["", "## Provenance", ""]
+    checkpoint = found["policy"].get("checkpoint")
+    if checkpoint:
+        step = checkpoint.get("training_step")
+        lines.append(
+            f"- weights: `{checkpoint['path']}`, sha256 `{checkpoint['sha256'][:16]}`"
+            + ("" if step is None else f", training step {step}")
+        )
+        data = checkpoint.get("dataset")
+        if data:
+            extra = [f"root `{data['root']}`"] if data.get("root") else []
+            extra += [f"{data['episodes']} episodes"] if data.get("episodes") is not None else []
+            extra += [f"episodes sha256 `{data['episodes_sha256'][:16]}`"] if data.get("episodes_sha256") else []
+            lines.append(f"- trained on `{data.get('repo_id')}`" + (f" ({', '.join(extra)})" if extra else ""))
+    execution = {k: v for k, v in found["execution"].items() if k != "policy_options"}
+    options = found["execution"].get("policy_options") or {}
+    lines.append(
+        "- execution: "
+        + ", ".join(f"{k} {v}" for k, v in execution.items() if v is not None)
+        + ("; options " + ", ".join(f"`{k}={v}`" for k, v in options.items()) if options else "")
+    )
+    lines.append(f"- suite digest `{found['suite']['digest'][:16]}`")
+    lines.append("- software: " + ", ".join(f"{k} {v}" for k, v in found["software"].items() if v is not None))
+    if found.get("vulkan"):
+        drivers = "; ".join(found["vulkan"]["drivers"].values()) or "none listed"
+        lines.append(f"- Vulkan device {found['vulkan']['device']} (drivers: {drivers})")
+    machine = found["machine"]
+    lines.append(
+        f"- machine: {machine['cpu']}, {machine['cores']} cores" + (f", GPU {machine['gpu']}" if machine["gpu"] else "")
+    )
+    if found.get("source"):
+        source = found["source"]
+        lines.append(
+            f"- kitbench at git `{source['git_commit'][:12]}`" + (" (with changes)" if source["dirty"] else "")
+        )
+    lines.append(f"- command: `{found['command']}`")
+    return lines
 
 
 def markdown(report: dict) -> str:
@@ -371,6 +415,8 @@ def markdown(report: dict) -> str:
     if output.get("plots"):
         lines += ["", "## Plots", ""]
         lines += [f"![{Path(p).stem}]({p})" for p in output["plots"]]
+    if report.get("provenance"):
+        lines += _provenance_lines(report["provenance"])
     timing = report.get("timing")
     if timing:
         lines += [

@@ -12,19 +12,25 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import replace
+from dataclasses import asdict, dataclass, field, replace
+from itertools import takewhile
 from pathlib import Path
 from typing import Any
 
+from kitbench import faults
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.engine.executor import ClusterLost
 from kitbench.env_settings import canonical_size
 from kitbench.errors import KitbenchError
+from kitbench.evaluation.compare import _seeds_text
 from kitbench.evaluation.config import COMMAND_LINE, EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
+from kitbench.evaluation.journal import EvalJournal
+from kitbench.evaluation.provenance import outcome_differences, plain, provenance
 from kitbench.evaluation.suite import Suite
-from kitbench.evaluation.work import Batch, EvalWork, Film, Save, Trial, make_suite_env
+from kitbench.evaluation.work import Batch, EvalWork, Film, Save, Trial, make_suite_env, suite_env_settings
 from kitbench.metadata import is_recording
+from kitbench.recording.stops import Stopped, StopSignals
 
 REPORT_JSON, REPORT_MD, PLOTS_DIR, VIDEOS_DIR = "report.json", "report.md", "plots", "videos"
 
@@ -109,30 +115,65 @@ def pick_video_seeds(results: list[EpisodeResult], count: int) -> list[EpisodeRe
     return [r for r in results if id(r) in chosen]
 
 
-def check_out_folder(out: Path, overwrite: bool) -> None:
-    """Refuse a report folder that is not a folder, or that holds something already (unless `overwrite`)."""
+def check_out_folder(out: Path, overwrite: bool, resume: bool = False) -> None:
+    """Refuse a report folder that is not a folder, that holds something already (unless `overwrite`), that holds
+    an interrupted evaluation (unless `resume` or `overwrite`), or a finished one to `resume`."""
     if out.exists() and not out.is_dir():
         raise KitbenchError(
             f"report folder {out} is a file; --out must be a folder (new, empty, or a report with --overwrite)"
+        )
+    if resume and overwrite:
+        raise KitbenchError("--resume and --overwrite exclude each other: continue the evaluation, or start it again")
+    journal = EvalJournal(out)
+    if journal.exists():
+        if not (resume or overwrite):
+            raise KitbenchError(
+                f"report folder {out} holds an interrupted evaluation ({journal.count()} episodes scored); continue "
+                "it with --resume, or pass --overwrite to start again"
+            )
+        return
+    if resume and (out / REPORT_JSON).is_file():
+        raise KitbenchError(
+            f"report folder {out} holds a finished evaluation: nothing to resume (pass --overwrite to run it again)"
         )
     if out.is_dir() and not overwrite and any(out.iterdir()):
         raise KitbenchError(f"report folder {out} exists; pass --overwrite to replace it")
 
 
-def validate(config: EvalConfig):
-    """Every check that can fail before anything is written or run at length; returns (suite, policy, the control
-    step's seconds, fps, the device a trained policy runs on)."""
+@dataclass
+class Plan:
+    """What `validate` found: the suite fitted to the policy, the control step, the device, the provenance of the
+    report, what a resume must match, and the results of the jobs a resumed run's journal holds."""
+
+    suite: Suite
+    timestep: float
+    fps: int
+    device: str
+    provenance: dict
+    settings: dict
+    journaled: list[list[EpisodeResult]] = field(default_factory=list)
+    resume: bool = False  # a journal with settings to continue
+    provenance_seconds: float = 0.0
+
+
+def validate(config: EvalConfig) -> Plan:
+    """Every check that can fail before anything is written or run at length, a resumed run's journal against the
+    command's settings included."""
     from kitbench.policies.lerobot_policy import resolve_device
     from kitbench.policies.registry import make_policy
 
     config.validate()
     device = resolve_device(config.policy.device)
-    check_out_folder(config.out, config.output.overwrite)
+    check_out_folder(config.out, config.output.overwrite, config.output.resume)
+    journal = EvalJournal(config.out)
+    stored = journal.settings() if config.output.resume and journal.exists() else None
     if config.output.save_dataset is not None:
-        _check_save_dataset(config)
-    policy = make_policy(config.policy.policy, device, dict(config.policy.policy_options))
+        _check_save_dataset(config, resuming=stored is not None)
+    options = dict(config.policy.policy_options)
+    policy = make_policy(config.policy.policy, device, options)
     suite = fit_suite_to_policy(config.suite, policy, config.origins)
     from kitbench.doctor import require_renderer
+    from kitbench.envs.modes import IMAGE_OBS_MODES
 
     require_renderer(suite.obs_mode)
     env = make_suite_env(suite)
@@ -141,39 +182,129 @@ def validate(config: EvalConfig):
         policy.reset(env, suite.seeds[0], obs, info)  # policies check the env fits them here
         timestep = env.control_timestep
         fps = env.control_freq
+        env_settings = {**suite_env_settings(suite), "sim": asdict(env.unwrapped.sim_config)}
     finally:
         env.close()
-    return suite, policy, timestep, fps, device
+    started = time.monotonic()
+    renders = suite.obs_mode in IMAGE_OBS_MODES
+    batch_size = config.policy.batch_size
+    found = provenance(config.policy.policy, policy, suite, env_settings, device, batch_size, options, renders)
+    plan = Plan(suite, timestep, fps, device, found, _resume_settings(config, suite, found))
+    plan.provenance_seconds = time.monotonic() - started
+    if stored is not None:
+        differences = _resume_differences(stored["settings"], plan.settings)
+        if differences:
+            raise KitbenchError(
+                f"cannot resume {config.out}: " + "; ".join(differences) + " (run it with the journal's settings, "
+                "or pass --overwrite to start again)"
+            )
+        plan.resume, plan.provenance = True, stored["provenance"]  # the report's is the run that started it
+        plan.journaled = journal.read([_seeds(job) for job in _jobs(suite, batch_size, saving=_saving(config))])
+        if _saving(config):  # a line is written after its episode: only a damaged episode file can be missing
+            whole = set(journal.episodes.check()[0])
+            plan.journaled = list(takewhile(lambda r: r[0].seed in whole, plan.journaled))
+    return plan
+
+
+def _saving(config: EvalConfig) -> bool:
+    return config.output.save_dataset is not None
+
+
+def _resume_settings(config: EvalConfig, suite: Suite, found: dict) -> dict:
+    """What decides a run's scores, which a resumed run must share with the run it continues (the executor and
+    its workers do not decide them, nor do the videos)."""
+    checkpoint = found["policy"]["checkpoint"]
+    return plain(
+        {
+            "policy": config.policy.policy,
+            "checkpoint": None if checkpoint is None else checkpoint["files"],
+            "suite": {k: v for k, v in suite.to_dict().items() if k not in ("name", "description", "source")},
+            "execution": found["execution"],
+            "software": found["software"],
+            "save_dataset": None if config.output.save_dataset is None else str(Path(config.output.save_dataset)),
+        }
+    )
+
+
+def _resume_differences(journaled: dict, now: dict) -> list[str]:
+    """How the command differs from the journal's run, one phrase each, naming both values."""
+    found = [
+        f"{key.replace('_', '-')}: journal {journaled.get(key)!r}, now {now[key]!r}"
+        for key in ("policy", "save_dataset")
+        if journaled.get(key) != now[key]
+    ]
+    old, new = journaled.get("checkpoint") or {}, now["checkpoint"] or {}
+    for name in dict.fromkeys([*old, *new]):
+        if old.get(name) != new.get(name) and journaled.get("policy") == now["policy"]:
+            short = [None if d is None else d[:12] for d in (old.get(name), new.get(name))]
+            found.append(f"checkpoint file {name}: journal sha256 {short[0]}, now {short[1]}")
+    old_suite, new_suite = journaled.get("suite") or {}, now["suite"]
+    for key in dict.fromkeys([*old_suite, *new_suite]):
+        a, b = old_suite.get(key), new_suite.get(key)
+        if a != b:
+            shown = (_seeds_text(a or []), _seeds_text(b or [])) if key == "seeds" else (repr(a), repr(b))
+            found.append(f"suite {key}: journal {shown[0]}, now {shown[1]}")
+    found += outcome_differences(
+        {k: journaled.get(k) for k in ("execution", "software")},
+        {k: now[k] for k in ("execution", "software")},
+        ("journal", "now"),
+    )
+    return found
+
+
+def _seeds(job: int | Trial | Batch | Save) -> tuple[int, ...]:
+    if isinstance(job, Batch):
+        return job.seeds
+    return (job if isinstance(job, int) else job.seed,)
 
 
 def run_eval(config: EvalConfig, progress: bool = True) -> dict:
-    """Score the policy on every seed, write the report (report.json, report.md, plots), then make the videos
-    and write the report again with them. A failed video pass leaves the report, with `output.video_error`
-    saying why, and returns normally."""
+    """Score the policy on every seed (each finished job journaled, so that `resume` continues a run that was
+    stopped), write the report (report.json, report.md, plots), then make the videos and write the report again
+    with them. A failed video pass leaves the report, with `output.video_error` saying why, and returns
+    normally."""
     wall_start = time.monotonic()
-    suite, policy, timestep, fps, device = validate(config)
-    del policy
+    plan = validate(config)
+    suite, timestep, fps, device = plan.suite, plan.timestep, plan.fps, plan.device
     out = config.out
     start = time.monotonic()
     batch_size = config.policy.batch_size
-    jobs = _jobs(suite, batch_size, saving=config.output.save_dataset is not None)
-    executor = make_executor(config.executor, len(jobs))
+    jobs = _jobs(suite, batch_size, saving=_saving(config))
+    executor = make_executor(config.executor, max(1, len(jobs) - len(plan.journaled)))
+    journal = EvalJournal(out)
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
     options = dict(config.policy.policy_options)
     with RolloutEngine(executor, EvalWork(suite, config.policy.policy, device, options)) as engine:
-        out.mkdir(parents=True, exist_ok=True)
-        for stale in (REPORT_JSON, REPORT_MD):
-            (out / stale).unlink(missing_ok=True)
-        for stale in (PLOTS_DIR, VIDEOS_DIR):
-            shutil.rmtree(out / stale, ignore_errors=True)
+        if plan.resume:
+            journal.open(len(plan.journaled))
+        else:
+            out.mkdir(parents=True, exist_ok=True)
+            for stale in (REPORT_JSON, REPORT_MD):
+                (out / stale).unlink(missing_ok=True)
+            for stale in (PLOTS_DIR, VIDEOS_DIR):
+                shutil.rmtree(out / stale, ignore_errors=True)
+            journal.start(plan.settings, plan.provenance)
+            journal.open(0)
+            faults.point("eval.started")
         try:
-            results, perturbed, episodes = _score(engine, suite, jobs, progress)
+            results, perturbed, episodes = _score(engine, suite, jobs, plan.journaled, journal, progress)
         except ClusterLost as exc:
-            raise KitbenchError(f"{exc}; no report was written: run the evaluation again") from None
+            raise KitbenchError(
+                f"{exc}; the episodes scored so far are kept: continue with --resume (the same command, on any "
+                "cluster or --executor local)"
+            ) from None
+        except Stopped as exc:
+            raise KitbenchError(
+                f"stopped by {exc}: the episodes scored so far are kept in {journal.root}; continue with --resume"
+            ) from None
+        finally:
+            journal.close()
+        faults.point("eval.scored")
         if config.output.save_dataset is not None:
             _write_dataset(config, suite, episodes)
         scored = time.monotonic()
         report = _write_report(suite, config.policy.policy, results, timestep, out, perturbed, options)
+        report["provenance"] = plan.provenance
         reported = time.monotonic()
         # Wall time from the call to the report, and its parts: checking the setup (loading the policy, building
         # an env: seconds for a lerobot checkpoint), scoring (worker start-up included) and writing the report.
@@ -185,13 +316,16 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             "scoring_seconds": scored - start,
             "report_seconds": reported - scored,
             "video_seconds": 0.0,
+            "provenance_seconds": plan.provenance_seconds,
             "workers": engine.workers,
             "executor": config.executor.executor,
             "batch_size": batch_size,
             "device": device,
+            "resumed_episodes": sum(len(r) for r in plan.journaled),
             "episodes_per_minute": 60.0 * len(results) / max(reported - wall_start, 1e-9),
         }
         _save(report, out)
+        faults.point("eval.reported")
         chosen = pick_video_seeds(results, config.output.videos)
         if chosen:
             try:
@@ -202,6 +336,8 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             report["timing"]["video_seconds"] = now - reported
             report["timing"]["seconds"] = now - wall_start
             _save(report, out)
+        faults.point("eval.finishing")
+        journal.remove()
     return report
 
 
@@ -230,10 +366,15 @@ def _condition(job: int | Trial | Batch | Save) -> tuple[str, float] | None:
 
 
 def _score(
-    engine: RolloutEngine, suite: Suite, jobs: list[int | Trial | Batch | Save], progress: bool
+    engine: RolloutEngine,
+    suite: Suite,
+    jobs: list[int | Trial | Batch | Save],
+    journaled: list[list[EpisodeResult]],
+    journal: EvalJournal,
+    progress: bool,
 ) -> tuple[list[EpisodeResult], dict[tuple[str, float], list[EpisodeResult]], list]:
     """The nominal results, the results under each (perturbation, level), in seed order, and the episodes the `Save`
-    jobs kept."""
+    jobs kept: the first jobs' from the journal (`journaled`), the others run, each journaled as it comes back."""
     bar = None
     if progress:
         from kitbench.progress import progress as progress_bar
@@ -242,27 +383,42 @@ def _score(
     results: list[EpisodeResult] = []
     perturbed: dict[tuple[str, float], list[EpisodeResult]] = {}
     episodes: list = []
+
+    def take(job, scored: list[EpisodeResult]) -> None:
+        condition = _condition(job)
+        (results if condition is None else perturbed.setdefault(condition, [])).extend(scored)
+        if bar is not None:
+            bar.update(len(scored))
+            if condition is None:
+                bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
+            else:
+                bar.set_postfix(condition=f"{condition[0]}={condition[1]:g}")
+
     try:
-        for job, result in zip(jobs, engine.map(jobs), strict=True):
+        for job, scored in zip(jobs, journaled, strict=False):
             if isinstance(job, Save):
-                result, episode = result
-                episodes.append(episode)
-            condition = _condition(job)
-            scored = result if isinstance(job, Batch) else [result]
-            (results if condition is None else perturbed.setdefault(condition, [])).extend(scored)
-            if bar is not None:
-                bar.update(len(scored))
-                if condition is None:
-                    bar.set_postfix(success=f"{sum(r.success for r in results) / len(results):.0%}")
-                else:
-                    bar.set_postfix(condition=f"{condition[0]}={condition[1]:g}")
+                episodes.append(journal.episodes.load(job.seed)[0])
+            take(job, scored)
+        left = jobs[len(journaled) :]
+        # SIGTERM and SIGHUP end the run as Ctrl-C does, never in the middle of journaling a finished job
+        with StopSignals() as stops:
+            for index, (job, result) in enumerate(zip(left, engine.map(left), strict=True), len(journaled)):
+                episode = None
+                if isinstance(job, Save):
+                    result, episode = result
+                    episodes.append(episode)
+                scored = result if isinstance(job, Batch) else [result]
+                with stops.storing():
+                    journal.add(index, scored, episode)
+                take(job, scored)
     finally:
         if bar is not None:
             bar.close()
     return results, perturbed, episodes
 
 
-def _check_save_dataset(config: EvalConfig) -> None:
+def _check_save_dataset(config: EvalConfig, resuming: bool = False) -> None:
+    """`resuming`: the dataset folder may hold what the interrupted run saved (a kitbench dataset), replaced."""
     target = Path(config.output.save_dataset)  # type: ignore[arg-type]  # checked by the caller
     if config.policy.batch_size != 1:
         raise KitbenchError(
@@ -271,7 +427,7 @@ def _check_save_dataset(config: EvalConfig) -> None:
     from kitbench.recording.dataset import recover
 
     recover(target)  # a save a kill interrupted: its last commit back in place, an unfinished session gone
-    if target.exists() and not config.output.overwrite:
+    if target.exists() and not (config.output.overwrite or resuming):
         raise KitbenchError(f"dataset folder {target} exists; pass --overwrite to replace it")
     if target.exists() and not is_recording(target):
         raise KitbenchError(f"{target} is not a kitbench dataset; --overwrite replaces only those")
@@ -386,6 +542,7 @@ def _film_each(engine: RolloutEngine, chosen: list[EpisodeResult], out: Path, fp
         partial = path.with_name(f".{path.name}.partial")
         partial.write_bytes(mp4)
         partial.replace(path)  # a video under its name is whole
+        faults.point("eval.filmed")
         same = (replayed.success, replayed.length, replayed.episode_return) == (
             scored.success,
             scored.length,

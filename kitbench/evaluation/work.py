@@ -48,17 +48,26 @@ class Batch:
     condition: tuple[str, float] | None = None
 
 
+def suite_env_settings(suite: Suite) -> dict:
+    """The settings of `make_env` that a suite decides (the render mode and a perturbation are the caller's)."""
+    return {
+        "task": suite.task_id,
+        "obs_mode": suite.obs_mode,
+        "control_mode": suite.control_mode,
+        "reward_mode": suite.reward_mode,
+        "robot_uids": suite.robot,
+        "sensor_configs": suite.sensor_configs,
+    }
+
+
 def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, float] | None = None):
     from kitbench.registration import make_env
 
+    settings = suite_env_settings(suite)
     return make_env(
-        suite.task_id,
-        obs_mode=suite.obs_mode,
-        control_mode=suite.control_mode,
-        reward_mode=suite.reward_mode,
+        settings.pop("task"),
+        **settings,
         render_mode="rgb_array" if render else None,
-        robot_uids=suite.robot,
-        sensor_configs=suite.sensor_configs,
         perturbations=None if perturbation is None else dict([perturbation]),
     )
 
