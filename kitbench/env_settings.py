@@ -56,9 +56,11 @@ class TaskSettings:
     task: str | None = setting(None, check=_task)
     # One of the task's robots (default: its first, e.g. panda; or fetch).
     robot: str | None = setting(None)
-    # The action space: pd_joint_delta_pos, pd_joint_pos, pd_ee_delta_pose, ...; a trained policy must act in the
-    # one its training dataset was recorded in.
-    control_mode: str = setting("pd_joint_delta_pos", check=one_of(CONTROL_MODES))
+    # The action space: pd_joint_pos, pd_joint_delta_pos, pd_ee_delta_pose, ...; a trained policy must act in the
+    # one its training dataset was recorded in. Absolute joint targets by default (the env's own default is
+    # ManiSkill's pd_joint_delta_pos): the mode ManiSkill's solutions act in, and in which the experts finish
+    # LiftPegUpright within its 50 steps under ManiSkill's drives (docs/fidelity.md).
+    control_mode: str = setting("pd_joint_pos", check=one_of(CONTROL_MODES))
 
     def __post_init__(self) -> None:
         # stored by its short name (a gym id `kitbench/<task>` is accepted), so settings compare whatever the spelling

@@ -117,7 +117,6 @@ def swap_seeds(root: Path) -> None:
     """Swap the first two episodes' seeds everywhere a recording keeps them (its data's `episode_seed` column, its
     episode file, the digest written with it), as a recorder that mixed them up would have written them."""
     import pyarrow as pa
-    import pyarrow as pa
     import pyarrow.parquet as pq
 
     from kitbench.metadata import RecordingInfo
@@ -160,7 +159,6 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
 def freeze_episode(root: Path, index: int) -> None:
     """Make episode `index`'s executed actions all its first one (the arm holds still where its expert moved), as
     a source whose actions were damaged would hold them: its replay leaves the peg where it lay."""
-    import pyarrow as pa
     import pyarrow as pa
     import pyarrow.parquet as pq
 

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium import spaces
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
 from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
