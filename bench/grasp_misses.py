@@ -57,7 +57,7 @@ def first_close(env, policy, seed: int) -> dict | None:
     row = None
     for step in range(MAX_STEPS):
         action = policy.act(obs)
-        if row is None and action[-1] > 0:
+        if row is None and action[-1] < 0:  # the hand commanded closed (ManiSkill's sign: -1 closes)
             tcp, obj = u.robot.tcp_pose(), u.obj.pose
             offset = (np.asarray(obj.p) - np.asarray(tcp.p)) * 1000
             obj_yaw = planar_yaw(quat_to_matrix(obj.q))

@@ -26,7 +26,7 @@ def make(**kw):
 
 def _hold(env, steps):
     action = np.zeros(env.action_space.shape, dtype=np.float32)
-    action[-1] = -1
+    action[-1] = 1  # open
     if env.unwrapped.control_mode == "pd_joint_pos":
         action[:-1] = env.unwrapped.robot.qpos()[:7]
     for _ in range(steps):
@@ -41,11 +41,11 @@ def test_ee_target_delta_pos_moves_tcp_by_the_commanded_amount(axis):
     u = env.unwrapped
     start = u.robot.tcp_pose()
     action = np.zeros(4, dtype=np.float32)
-    action[axis] = 0.01
-    action[-1] = -1
+    action[axis] = 0.1  # 1 cm: ManiSkill's normalised delta, 1 being 0.1 m
+    action[-1] = 1
     for _ in range(10):
         env.step(action)
-    _hold(env, 6)
+    _hold(env, 15)
     end = u.robot.tcp_pose()
     expected = np.zeros(3)
     expected[axis] = 0.1
@@ -58,10 +58,10 @@ def test_ee_target_delta_pose_rotates_about_the_tcp():
     env.reset(seed=0)
     u = env.unwrapped
     start = u.robot.tcp_pose()
-    action = np.array([0, 0, 0, 0, 0, 0.05, -1], dtype=np.float32)
+    action = np.array([0, 0, 0, 0, 0, -0.5, 1], dtype=np.float32)  # ManiSkill scales a rotation by -0.1: 0.05 rad
     for _ in range(10):
         env.step(action)
-    _hold(env, 6)
+    _hold(env, 15)
     end = u.robot.tcp_pose()
     rel = quat_to_matrix(end.q) @ quat_to_matrix(start.q).T
     assert math.atan2(rel[1, 0], rel[0, 0]) == pytest.approx(0.5, abs=0.01)
@@ -73,7 +73,7 @@ def test_ee_pose_reaches_an_absolute_target():
     env.reset(seed=0)
     u = env.unwrapped
     # base frame: 0.5 m ahead, 0.1 m left, 0.25 m up, gripper pointing down (rotation pi about x)
-    action = np.array([0.5, 0.1, 0.25, math.pi, 0, 0, -1], dtype=np.float32)
+    action = np.array([0.5, 0.1, 0.25, math.pi, 0, 0, 1], dtype=np.float32)
     for _ in range(25):
         env.step(action)
     tcp = u.robot.tcp_pose()
@@ -85,17 +85,17 @@ def test_joint_pos_and_joint_target_delta_pos_reach_their_targets():
     env = make(control_mode="pd_joint_pos")
     env.reset(seed=0)
     target = env.unwrapped.robot.qpos()[:7] + np.array([0.3, -0.2, 0.1, 0.2, -0.1, 0.2, 0.4])
-    for _ in range(20):
-        env.step(np.append(target, -1).astype(np.float32))
+    for _ in range(30):
+        env.step(np.append(target, 1).astype(np.float32))
     np.testing.assert_allclose(env.unwrapped.robot.qpos()[:7], target, atol=0.01)
 
     env = make(control_mode="pd_joint_target_delta_pos")
     env.reset(seed=0)
     start = env.unwrapped.robot.qpos()[:7].copy()
-    delta = np.array([0.05, 0, 0, 0, 0, 0, -0.05, -1], dtype=np.float32)
+    delta = np.array([0.5, 0, 0, 0, 0, 0, -0.5, 1], dtype=np.float32)  # 0.05 rad a step
     for _ in range(10):
         env.step(delta)
-    _hold(env, 6)
+    _hold(env, 15)
     np.testing.assert_allclose(env.unwrapped.robot.qpos()[:7] - start, [0.5, 0, 0, 0, 0, 0, -0.5], atol=0.01)
 
 
@@ -111,14 +111,15 @@ def test_delta_modes_apply_the_action_to_the_measured_state(mode):
         q = u.robot.qpos()[:7].copy()
         action = rng.uniform(u.action_space.low, u.action_space.high).astype(np.float32)
         env.step(action)
+        physical = u.action_to_sim(action)  # radians, metres, axis-angle (ManiSkill's scale and Euler read)
         if mode == "pd_joint_delta_pos":
-            np.testing.assert_allclose(u.controller.joint_target, q + action[:7], atol=1e-6)
+            np.testing.assert_allclose(u.controller.joint_target, q + physical[:7], atol=1e-6)
             continue
         measured = u.controller.kinematics.tcp_pose(q)
         target = u.controller.tcp_target
-        np.testing.assert_allclose(target[:3, 3], measured[:3, 3] + action[:3], atol=1e-6)
+        np.testing.assert_allclose(target[:3, 3], measured[:3, 3] + physical[:3], atol=1e-6)
         if mode == "pd_ee_delta_pose":
-            rotated = axis_angle_to_matrix(action[3:6].astype(np.float64)) @ measured[:3, :3]
+            rotated = axis_angle_to_matrix(physical[3:6]) @ measured[:3, :3]
             np.testing.assert_allclose(target[:3, :3], rotated, atol=1e-6)
 
 
@@ -128,7 +129,7 @@ def test_target_delta_accumulates_where_delta_restarts_from_the_joints(mode):
     env.reset(seed=0)
     u = env.unwrapped
     start = u.robot.qpos()[:7].copy()
-    step = np.array([0.1, 0, 0, 0, 0, 0, 0, -1], dtype=np.float32)
+    step = np.array([1.0, 0, 0, 0, 0, 0, 0, 1], dtype=np.float32)  # 0.1 rad
     env.step(step)
     after_first = u.robot.qpos()[0]
     env.step(step)
@@ -156,8 +157,9 @@ def test_preview_gives_the_targets_a_step_sets_and_leaves_the_controller_alone(m
         if mode == "pd_joint_pos":
             action[:7] = u.robot.qpos()[:7] + rng.uniform(-0.05, 0.05, 7)
         before = u.controller.joint_target.copy(), u.controller.tcp_target
-        decoy = u.controller.preview(rng.uniform(u.action_space.low, u.action_space.high)[:-1], u.robot.arm_qpos())
-        previewed = u.controller.preview(action[:-1], u.robot.arm_qpos())
+        decoy = u.action_to_sim(rng.uniform(u.action_space.low, u.action_space.high))[:-1]
+        decoy = u.controller.preview(decoy, u.robot.arm_qpos())
+        previewed = u.controller.preview(u.action_to_sim(action)[:-1], u.robot.arm_qpos())
         np.testing.assert_array_equal(u.controller.joint_target, before[0])
         assert u.controller.tcp_target is before[1]
         assert not np.allclose(decoy, previewed)
@@ -178,12 +180,12 @@ def test_gripper_opens_and_closes():
     env = make(control_mode="pd_joint_delta_pos")
     env.reset(seed=0)
     close = np.zeros(8, dtype=np.float32)
-    close[-1] = 1
+    close[-1] = -1  # ManiSkill's convention: -1 closes, +1 opens
     for _ in range(10):
         env.step(close)
     fingers = env.unwrapped.robot.qpos()[7:]
     assert np.all(fingers < 0.002) and abs(fingers[0] - fingers[1]) < 1e-3  # closed, together
-    close[-1] = -1
+    close[-1] = 1
     for _ in range(10):
         env.step(close)
     assert np.all(env.unwrapped.robot.qpos()[7:] > 0.038)
@@ -195,7 +197,7 @@ def test_out_of_box_actions_are_clipped():
     b.reset(seed=4)
     for _ in range(5):
         oa, *_ = a.step(np.array([5.0, -5.0, 0.3, 9.0], dtype=np.float32))
-        ob, *_ = b.step(np.array([0.1, -0.1, 0.1, 1.0], dtype=np.float32))
+        ob, *_ = b.step(np.array([1.0, -1.0, 0.3, 1.0], dtype=np.float32))
     np.testing.assert_array_equal(oa, ob)
 
 
@@ -343,7 +345,7 @@ def test_state_only_use_runs_without_any_vulkan_device():
 
 
 # -- determinism ----------------------------------------------------------------------------------
-def _contact_rollout(env, seed, descend=5):
+def _contact_rollout(env, seed, descend=8):
     """Reset, put the peg under the gripper, descend, grasp and lift: a rollout full of contacts."""
     obs, _ = env.reset(seed=seed)
     u = env.unwrapped
@@ -351,9 +353,10 @@ def _contact_rollout(env, seed, descend=5):
     set_actor_pose(u.peg, [tcp[0], tcp[1], PEG_HALF_WIDTH], LYING_QUAT)
     rng = np.random.default_rng(seed)
     frames = [obs]
-    plan = [[0, 0, -0.03, -1]] * descend + [[0, 0, 0, 1]] * 5 + [[0, 0, 0.03, 1]] * 5
+    # ManiSkill's normalised deltas (0.3: 3 cm a step) and gripper (+1 open, -1 closed)
+    plan = [[0, 0, -0.3, 1]] * descend + [[0, 0, 0, -1]] * 5 + [[0, 0, 0.3, -1]] * 8
     for a in plan:
-        noisy = np.asarray(a, dtype=np.float32) + rng.normal(0, 0.002, 4).astype(np.float32)
+        noisy = np.asarray(a, dtype=np.float32) + rng.normal(0, 0.02, 4).astype(np.float32)
         obs, *_ = env.step(noisy)
         frames.append(obs)
     return np.stack(frames)
@@ -363,7 +366,7 @@ def test_same_seed_same_actions_bitwise_identical():
     a = make(control_mode="pd_ee_delta_pos", robot_init_qpos_noise=0.02)
     first = _contact_rollout(a, 11)
     assert first[-1][-7 + 2] > 0.05, "the rollout should have lifted the peg"
-    _contact_rollout(a, 12, descend=8)  # a different episode in between, pressing into the table
+    _contact_rollout(a, 12, descend=11)  # a different episode in between, pressing into the table
     again = _contact_rollout(a, 11)
     fresh = _contact_rollout(make(control_mode="pd_ee_delta_pos", robot_init_qpos_noise=0.02), 11)
     np.testing.assert_array_equal(first, again)

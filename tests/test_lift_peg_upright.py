@@ -109,13 +109,13 @@ def test_grasped_peg_is_lifted_and_rotated_without_slipping():
     grasp[:3, 3] = [peg_p[0] + 0.03, peg_p[1], PEG_HALF_WIDTH]  # 3 cm off-centre along the peg
     above = grasp.copy()
     above[2, 3] += 0.1
-    follow.move(above, -1, 15)
-    follow.move(grasp, -1, 10)
-    follow.move(grasp, 1, 1, settle=8)
+    follow.move(above, 1, 15)  # ManiSkill's gripper: +1 open, -1 closed
+    follow.move(grasp, 1, 10)
+    follow.move(grasp, -1, 1, settle=8)
     assert u.robot.is_grasping(u.peg)
     lifted = grasp.copy()
     lifted[2, 3] += 0.1
-    follow.move(lifted, 1, 15)
+    follow.move(lifted, -1, 15)
     tcp = follow.tcp_world()
     assert u.peg.pose.p[2] == pytest.approx(PEG_HALF_WIDTH + 0.1, abs=0.01)
     offset_before = np.linalg.inv(tcp) @ np.append(u.peg.pose.p, 1)
@@ -124,7 +124,7 @@ def test_grasped_peg_is_lifted_and_rotated_without_slipping():
     turned = lifted.copy()
     turned[:3, :3] = np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]) @ lifted[:3, :3]
     turned[:3, 3] = [-0.17, lifted[1, 3], 0.2]
-    follow.move(turned, 1, 25, settle=10)
+    follow.move(turned, -1, 25, settle=10)
     tcp = follow.tcp_world()
     offset_after = np.linalg.inv(tcp) @ np.append(u.peg.pose.p, 1)
     axis = quat_to_matrix(u.peg.pose.q)[:, 0]

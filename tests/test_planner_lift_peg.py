@@ -75,14 +75,15 @@ def test_expert_is_deterministic(env, planner):
 
 
 def test_phases_targets_and_joint_speeds(env, planner):
-    """Phases come in order, the logged TCP target is where the arm ends up, and no joint target moves faster
-    than the Panda's velocity limits."""
+    """Phases come in order, the logged TCP target is where the arm ends up, no planned joint position moves faster
+    than the Panda's velocity limits, and each action leads its plan by `drive_lead` of the drives' lag."""
     u = env.unwrapped
-    q0 = []
+    q0, planned = [], []
 
     def record_start(step):
         if step == 0:
             q0.append(u.robot.qpos()[:7].astype(np.float64))
+        planned.append(planner.sequencer.last.q.astype(np.float64))
 
     info, actions, phases = run(env, planner, 0, on_step=record_start)
     assert info["success"]
@@ -92,9 +93,12 @@ def test_phases_targets_and_joint_speeds(env, planner):
     assert target.shape == (4, 4)
     tcp = u.robot.tcp_pose()
     assert np.linalg.norm(target[:3, 3] - tcp.p) < 0.01
-    q = np.vstack([q0[0], actions[:, :7].astype(np.float64)])
+    q = np.vstack([q0[0], planned])
     speed = np.abs(np.diff(q, axis=0)) / u.control_timestep
     assert np.all(speed <= np.asarray(ARM_VELOCITY_LIMITS) * 1.01)
+    spec = u.robot_spec
+    lead = planner.cfg.drive_lead * spec.arm_damping / spec.arm_stiffness  # s
+    np.testing.assert_allclose(actions[1:, :7], q[2:] + lead * np.diff(q[1:], axis=0) / u.control_timestep, atol=1e-5)
 
 
 def test_missed_grasp_is_retried(env, planner):

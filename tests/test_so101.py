@@ -58,7 +58,7 @@ def test_state_and_actions_are_in_the_so_followers_units():
     action = np.array([10.0, -20.0, 30.0, 40.0, -50.0, 25.0], dtype=np.float32)
     sim = u.action_to_sim(action)
     assert np.allclose(sim[:5], np.radians(action[:5]))
-    assert sim[5] == pytest.approx(0.5)  # 25% open: halfway from open (-1) to closed (1) and on
+    assert sim[5] == pytest.approx(-0.5)  # 25% open: a quarter of the way from closed (-1) to open (1)
     assert np.allclose(u.action_from_sim(sim), action, atol=1e-4)
     target = action.copy()
     target[5] = 0.0
@@ -107,7 +107,7 @@ def test_ee_delta_pose_tracks_position_and_the_reachable_rotations():
     env.reset(seed=0)
     before = pose_to_matrix(u.robot.tcp_pose().p, u.robot.tcp_pose().q)
     action = np.zeros(7, dtype=np.float32)
-    action[0] = 0.02  # 2 cm forward
+    action[0] = 0.2  # 2 cm forward (ManiSkill's normalised delta: 1 is 0.1 m)
     action[6] = 100.0
     for _ in range(4):
         env.step(action if _ == 0 else np.array([0, 0, 0, 0, 0, 0, 100], dtype=np.float32))
@@ -116,7 +116,7 @@ def test_ee_delta_pose_tracks_position_and_the_reachable_rotations():
     # roll about the approach axis (the jaw points down at the ready pose: world z)
     before = after
     roll = np.zeros(7, dtype=np.float32)
-    roll[5] = 0.1
+    roll[5] = -1.0  # 0.1 rad about z: ManiSkill scales a rotation by -0.1
     roll[6] = 100.0
     env.step(roll)
     for _ in range(3):

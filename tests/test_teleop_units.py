@@ -113,7 +113,7 @@ def test_a_leader_arms_degrees_and_jaw_percent_land_as_the_followers_joint_targe
     leader = {f"{m}.pos": v for m, v in degrees.items()} | {"gripper.pos": 30.0}
     arm, gripper = mapping.targets(leader)
     np.testing.assert_allclose(arm, np.radians(list(degrees.values())))
-    assert gripper == pytest.approx(1 - 30 / 50)  # the simulation's command for 30% open
+    assert gripper == pytest.approx(30 / 50 - 1)  # the simulation's command for 30% open (ManiSkill's: +1 open)
     action = mapping.action(so101, leader)  # pd_joint_pos: the same numbers, in the follower's units
     np.testing.assert_allclose(action, [*degrees.values(), 30.0], atol=1e-4)
     assert mapping.clips.total == 0 and mapping.clips.values == 12
@@ -157,11 +157,12 @@ def test_gamepad_deltas_move_the_tcp_at_the_set_speed_and_its_classes_hold_the_g
         env.reset(seed=0)
         mapping = DeltaMapping(env, speed=0.2)  # 0.2 m/s at 20 Hz: 1 cm a step
         first = mapping.action(env, {"delta_x": 1.0, "delta_y": -0.5, "delta_z": 0.0, "gripper": 1.0})
-        np.testing.assert_allclose(first, [0.01, -0.005, 0, 0, 0, 0, -1], atol=1e-7)  # no rotation; stays open
+        # 1 cm and -0.5 cm in ManiSkill's normalised deltas (1 is 0.1 m); no rotation; stays open (+1)
+        np.testing.assert_allclose(first, [0.1, -0.05, 0, 0, 0, 0, 1], atol=1e-6)
         closed = mapping.action(env, {"delta_x": 0.0, "delta_y": 0.0, "delta_z": 0.0, "gripper": 0.0})
         held = mapping.action(env, {"delta_x": 0.0, "delta_y": 0.0, "delta_z": 0.0, "gripper": 1.0})
         opened = mapping.action(env, {"delta_x": 0.0, "delta_y": 0.0, "delta_z": 0.0, "gripper": 2.0})
-        assert (closed[-1], held[-1], opened[-1]) == (1.0, 1.0, -1.0)
+        assert (closed[-1], held[-1], opened[-1]) == (-1.0, -1.0, 1.0)
     finally:
         env.close()
 
@@ -182,7 +183,7 @@ def test_a_phone_moves_the_tcp_from_where_it_was_commanded_when_enabled():
         moved = idle | {"phone.pos": np.array([0.02, -0.04, 0.0]), "phone.enabled": True}
         action = mapping.action(env, moved | {"phone.raw_inputs": {"a3": -1.0}})
         np.testing.assert_allclose(action[:3], reference[:3, 3] + [0.02, 0.01, 0.0], atol=1e-6)
-        assert action[-1] == pytest.approx(1 - 80 / 50)  # the jaw closed 20% from open
+        assert action[-1] == pytest.approx(80 / 50 - 1)  # the jaw closed 20% from open
     finally:
         env.close()
 
