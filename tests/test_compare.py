@@ -292,7 +292,7 @@ def test_different_suites_are_refused_naming_the_difference(tmp_path):
         "1000006…1000011); pass --allow-different-suites to compare them anyway"
     )
     c = make_report(LIFT, outcomes(3, 6), control_mode="pd_ee_delta_pose")
-    with pytest.raises(KitbenchError, match=r"control_mode: A 'pd_joint_delta_pos', B 'pd_ee_delta_pose'"):
+    with pytest.raises(KitbenchError, match=r"control_mode: A 'pd_joint_pos', B 'pd_ee_delta_pose'"):
         compare_reports(*pair(tmp_path, a, c))
     d = make_report(KITS, outcomes(3, 6))
     with pytest.raises(KitbenchError, match=r"task: A 'LiftPegUpright-v1', B 'AssemblingKits-v1'"):

@@ -31,14 +31,14 @@ def _source(root: Path, control_mode: str, episodes: int = 3, **kwargs) -> Path:
 
 @pytest.fixture(scope="module")
 def joint_delta_source(tmp_path_factory):
-    return _source(tmp_path_factory.mktemp("convert") / "src", "pd_joint_delta_pos", mcap=False)
+    return _source(tmp_path_factory.mktemp("convert") / "src", "pd_joint_target_delta_pos", mcap=False)
 
 
 def test_cameras_rendered_afterwards_are_the_frames_of_a_direct_recording(joint_delta_source, tmp_path, needs_vulkan):
     converted = tmp_path / "converted"
     summary = record(convert_config(joint_delta_source, converted, obs_mode="rgb+depth+segmentation"), progress=False)
     assert summary.stored == 3 and summary.rejected == 0
-    direct = _source(tmp_path / "direct", "pd_joint_delta_pos", obs_mode="rgb+depth+segmentation")
+    direct = _source(tmp_path / "direct", "pd_joint_target_delta_pos", obs_mode="rgb+depth+segmentation")
     a, b, src = _columns(converted), _columns(direct), _columns(joint_delta_source)
     for name in COLUMNS:
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
@@ -96,16 +96,16 @@ def test_absolute_targets_beyond_a_delta_box_are_reached_with_catch_up_steps(tmp
     assert CATCH_UP_STEPS >= 1
     source = _source(tmp_path / "src", "pd_joint_pos", episodes=3, mcap=False)
     out = tmp_path / "deltas"
-    summary = record(convert_config(source, out, control_mode="pd_joint_delta_pos", mcap=False), progress=False)
+    summary = record(convert_config(source, out, control_mode="pd_joint_target_delta_pos", mcap=False), progress=False)
     assert summary.stored + summary.rejected == 3 and summary.stored >= 2
     a, src = _columns(out), _columns(source)
     source_lengths = {e["seed"]: e["length"] for e in map(json.loads, (source / "meta/kitbench_episodes.jsonl").open())}
     for episode in map(json.loads, (out / "meta/kitbench_episodes.jsonl").open()):
         assert episode["length"] > source_lengths[episode["seed"]]  # catch-up steps were taken
-        env = gym.make(f"kitbench/{TASK}", control_mode="pd_joint_delta_pos")
+        env = gym.make(f"kitbench/{TASK}", control_mode="pd_joint_target_delta_pos")
         env.reset(seed=episode["seed"])
         actions = a["executed_action"][a["episode_index"].reshape(-1) == episode["episode_index"]]
-        assert np.abs(actions[:, :-1]).max() <= 0.1 + 1e-6  # every arm step within the delta box
+        assert np.abs(actions[:, :-1]).max() <= 1.0 + 1e-6  # every arm step within the delta box (ManiSkill's [-1, 1])
         for action in actions:
             _, _, _, _, info = env.step(action)
         assert bool(info["success"]) and episode["success"]
@@ -145,7 +145,7 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
     out = tmp_path / "deltas"
     run = subprocess.run(
         [sys.executable, "-m", "kitbench.cli", "convert", str(source), "--out", str(out)]
-        + ["--control-mode", "pd_joint_delta_pos"],
+        + ["--control-mode", "pd_joint_target_delta_pos"],
         capture_output=True,
         text=True,
         timeout=600,
@@ -184,7 +184,7 @@ def test_a_diverged_episode_between_stored_ones_leaves_a_dataset_that_passes_the
     freeze_episode(source, 1)
     assert RecordingInfo.read(source).seeds is None  # consecutive: the settings imply them
     out = tmp_path / "deltas"
-    summary = record(convert_config(source, out, control_mode="pd_joint_delta_pos", mcap=False), progress=False)
+    summary = record(convert_config(source, out, control_mode="pd_joint_target_delta_pos", mcap=False), progress=False)
     assert summary.stored == 2 and summary.rejected == 1
     check_dataset(out)
     assert SourceRecording(out).seeds == (0, 2) and RecordingInfo.read(out).seeds == [0, 2]
@@ -226,7 +226,7 @@ def test_path_gap_ignores_timing_and_measures_a_detour():
 
 
 def test_kill_minus_nine_loses_at_most_the_episode_in_flight_and_resume_finishes_identically(tmp_path):
-    source = _source(tmp_path / "src", "pd_joint_delta_pos", episodes=6, mcap=False)
+    source = _source(tmp_path / "src", "pd_joint_target_delta_pos", episodes=6, mcap=False)
     out, reference = tmp_path / "killed", tmp_path / "reference"
     cmd = [sys.executable, "-m", "kitbench.cli", "convert", str(source), "--control-mode", "pd_joint_pos"]
     cmd += ["--no-mcap", "--commit-interval", "0"]
@@ -283,7 +283,7 @@ def _as_recorded_before_the_convention(source: Path, old: Path) -> Path:
         table = pq.read_table(path)
         for name in ("action", "executed_action"):
             rows = np.stack(table.column(name).to_numpy(zero_copy_only=False)).copy()
-            rows[:, 7] = -rows[:, 7]  # pd_joint_delta_pos on the Panda: 7 joints, then the gripper
+            rows[:, 7] = -rows[:, 7]  # pd_joint_target_delta_pos on the Panda: 7 joints, then the gripper
             column = table.schema.get_field_index(name)
             field = table.schema.field(name)
             table = table.set_column(column, field, pa.array(rows.tolist(), type=field.type))

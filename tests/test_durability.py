@@ -201,7 +201,7 @@ def test_a_journal_with_episodes_is_never_overwritten_by_accident(tmp_path):
         record(RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False), progress=False)
     with pytest.raises(KitbenchError, match=r"cannot resume .* different settings .*control_mode"):
         record(
-            RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False, resume=True, control_mode="pd_joint_pos"),
+            RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False, resume=True, control_mode="pd_ee_delta_pose"),
             progress=False,
         )
     summary = record(RecordConfig.of(task=TASK, episodes=5, out=out, mcap=False, resume=True), progress=False)

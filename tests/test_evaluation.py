@@ -193,7 +193,7 @@ class _LetGoMidSwing:
             self.swinging += 1
         if self.swinging > self.steps:
             if self.how == "open":
-                action[-1] = -1.0
+                action[-1] = 1.0  # open (ManiSkill's sign)
             elif self.swinging == self.steps + 1:  # out of the fingers, as a slip ends
                 import sapien
 

@@ -129,7 +129,7 @@ def test_after_each_lerobot_tool_the_recording_reads_with_its_settings_and_episo
 def test_convert_and_replay_read_an_edited_recording_and_keep_each_episode_seed(recordings, tmp_path, tool):
     out = _edited(recordings, tmp_path, tool)
     converted = tmp_path / "converted"
-    assert main(["convert", str(out), "--out", str(converted), "--control-mode", "pd_ee_delta_pose"]) == 0
+    assert main(["convert", str(out), "--out", str(converted), "--control-mode", "pd_ee_pose"]) == 0
     assert [e.seed for e in read_episodes(converted)] == [e.seed for e in read_episodes(out)]
     assert RecordingInfo.read(converted).source == str(out)
     source = SourceRecording(out)

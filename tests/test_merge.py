@@ -90,10 +90,10 @@ def test_overlapping_seeds_are_refused_and_nothing_is_written(state_shards, tmp_
 
 def test_shards_with_other_settings_are_refused(state_shards, tmp_path):
     _, shards = state_shards
-    other = _record(tmp_path / "other", 10, 1, control_mode="pd_joint_pos")
+    other = _record(tmp_path / "other", 10, 1, control_mode="pd_ee_delta_pose")
     with pytest.raises(KitbenchError) as err:
         merge([shards[0], other], tmp_path / "merged")
-    assert "were recorded with different control_mode ('pd_joint_delta_pos' and 'pd_joint_pos')" in str(err.value)
+    assert "were recorded with different control_mode ('pd_joint_pos' and 'pd_ee_delta_pose')" in str(err.value)
     assert not (tmp_path / "merged").exists()
 
 

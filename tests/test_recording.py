@@ -39,7 +39,7 @@ def _columns(root: Path) -> dict[str, np.ndarray]:
 def state_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("rec") / "lpu_state"
     summary = record(
-        RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_delta_pos"),
+        RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_target_delta_pos"),
         progress=False,
     )
     return out, summary
@@ -97,7 +97,7 @@ def test_expert_episodes_succeed_and_end_on_success(state_dataset):
 def test_replaying_recorded_actions_reproduces_recorded_states(state_dataset):
     out, _ = state_dataset
     cols = _columns(out)
-    env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_joint_delta_pos")
+    env = gym.make("kitbench/LiftPegUpright-v1", control_mode="pd_joint_target_delta_pos")
     for episode in range(3):
         rows = np.flatnonzero(cols["episode_index"].reshape(-1) == episode)
         seed = int(cols["episode_seed"][rows[0]][0])
@@ -221,16 +221,16 @@ def kits_successes_only(out: Path, episodes: int, seed: int = 0) -> RecordConfig
 
 
 def test_a_successes_only_recording_whose_first_seed_fails_passes_the_training_checks(tmp_path):
-    """AssemblingKits' seed 3 fails with its recipes' noise: a recording from seed 3 stores seeds 4 and 5, lists
-    them in its settings, and the checks lerobot-train runs through the plugin accept it (they refused it: "says
-    first seed 3; the data's is 4")."""
+    """AssemblingKits' seeds 3 and 5 fail with its recipes' noise: a recording from seed 3 stores seeds 4 and 6,
+    lists them in its settings, and the checks lerobot-train runs through the plugin accept it (they refused it:
+    "says first seed 3; the data's is 4")."""
     from kitbench.integrity import check_dataset
     from kitbench.metadata import RecordingInfo
 
     out = tmp_path / "from3"
     record(kits_successes_only(out, 2, seed=3), progress=False)
     check_dataset(out)
-    assert RecordingInfo.read(out).seeds == [4, 5]
+    assert RecordingInfo.read(out).seeds == [4, 6]
 
 
 # -- faults -----------------------------------------------------------------------------------------
@@ -260,7 +260,7 @@ def test_resume_refuses_a_recording_made_by_another_kitbench_version(state_datas
     out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     before = sorted(p.name for p in out.rglob("*"))
     config = RecordConfig.of(
-        task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_delta_pos", resume=True
+        task="LiftPegUpright-v1", episodes=4, out=out, seed=0, control_mode="pd_joint_target_delta_pos", resume=True
     )
     with pytest.raises(ValueError, match=rf"kitbench_version: recorded '0.0.1', asked '{kitbench.__version__}'"):
         record(config, progress=False)
@@ -321,7 +321,7 @@ def test_replaying_a_recording_of_another_kitbench_version_warns(state_dataset, 
         warnings.simplefilter("error")
         assert ReplayPolicy(str(state_dataset[0])).requirements() == {
             "task": "LiftPegUpright-v1",
-            "control_mode": "pd_joint_delta_pos",
+            "control_mode": "pd_joint_target_delta_pos",
         }
     out = _as_recorded_by_an_older_version(state_dataset[0], tmp_path / "older")
     with pytest.warns(UserWarning, match="recorded with kitbench 0.0.1"):

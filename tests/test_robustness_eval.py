@@ -37,11 +37,12 @@ class LiftAfterSuccess(ExpertPolicy):
         self.done = self.done or bool(u.evaluate()["success"])
         if not self.done:
             return super().act(obs)
-        return np.array([0, -0.1, 0, 0.1, 0, 0, 0, 1], dtype=np.float32)  # shoulder up, elbow out: the hand rises
+        # shoulder up, elbow out by 0.1 rad a step (ManiSkill's normalised deltas), the hand closed: it rises
+        return np.array([0, -1.0, 0, 1.0, 0, 0, 0, -1], dtype=np.float32)
 
 
 def _env(**kwargs):
-    return gym.make(f"kitbench/{LPU}", control_mode="pd_joint_delta_pos", **kwargs)
+    return gym.make(f"kitbench/{LPU}", control_mode="pd_joint_target_delta_pos", **kwargs)
 
 
 # -- success_once and success_at_end on constructed episodes ---------------------------------------------

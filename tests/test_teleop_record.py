@@ -141,18 +141,21 @@ def test_a_leader_arm_replaying_the_experts_joint_stream_reproduces_its_episode_
 def test_a_phone_replaying_the_experts_tcp_path_reproduces_its_success_on_the_panda(tmp_path):
     from lerobot.utils.rotation import Rotation
 
+    from kitbench.control.controllers import make_controller
     from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 
     truth = expert(1, robot="panda", mode="pd_ee_delta_pose")
     assert truth.success
+    decode = make_controller("pd_ee_delta_pose", np.zeros((7, 2)), lambda: None).decode  # ManiSkill's form to SI
     reads, jaw = [], 100.0
     for action, measured in zip(truth.actions, truth.measured, strict=True):
+        delta = decode(action[:6])
         target = np.eye(4)  # where the expert's delta took the TCP from where it was measured
-        target[:3, 3] = measured[:3, 3] + action[:3]
-        target[:3, :3] = axis_angle_to_matrix(action[3:6]) @ measured[:3, :3]
+        target[:3, 3] = measured[:3, 3] + delta[:3]
+        target[:3, :3] = axis_angle_to_matrix(delta[3:6]) @ measured[:3, :3]
         move = target[:3, 3] - truth.reference[:3, 3]  # the phone's pose since its press, lerobot's phone axes
         turn = matrix_to_axis_angle(truth.reference[:3, :3].T @ target[:3, :3])
-        percent = 50.0 * (1.0 - float(action[-1]))
+        percent = 50.0 * (1.0 + float(action[-1]))
         reads.append(
             {
                 "phone.pos": np.array([move[1], -move[0], move[2]]),
@@ -183,8 +186,9 @@ def test_gamepad_deltas_are_stored_as_end_effector_actions_at_the_set_speed(tmp_
     assert record(tmp_path, device="kitbench_replay_gamepad", robot="panda", mode="pd_ee_delta_pos") == 0
     data = np.stack(frames(tmp_path)["action"].to_numpy())
     assert data.shape == (steps, 4)
-    np.testing.assert_allclose(data[:, :3], deltas * 0.1 * 0.05, atol=1e-6)  # 0.1 m/s at full deflection, 20 Hz
-    np.testing.assert_array_equal(data[:, 3], np.where(k < 10, -1.0, 1.0))
+    # 0.1 m/s at full deflection, 20 Hz, in ManiSkill's normalised deltas (1 is 0.1 m)
+    np.testing.assert_allclose(data[:, :3], deltas * 0.1 * 0.05 / 0.1, atol=1e-6)
+    np.testing.assert_array_equal(data[:, 3], np.where(k < 10, 1.0, -1.0))
 
 
 def test_a_missing_device_is_one_line_naming_it_and_its_port_and_nothing_is_written(tmp_path, capsys):

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from kitbench.envs.tabletop import TabletopEnv
     from kitbench.robots import Robot, RobotSpec
     from kitbench.sim.cameras import CameraSpec
+    from kitbench.sim.scene import SimConfig
 
 
 class KitbenchEnv(gym.Wrapper):
@@ -85,6 +86,10 @@ class KitbenchEnv(gym.Wrapper):
     @property
     def obs_mode(self) -> str:
         return self._core.obs_mode
+
+    @property
+    def sim_config(self) -> SimConfig:
+        return self._core.sim_config
 
     @property
     def control_timestep(self) -> float:

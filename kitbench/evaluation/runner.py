@@ -21,6 +21,7 @@ from kitbench import faults
 from kitbench.engine import RolloutEngine, make_executor
 from kitbench.engine.executor import ClusterLost
 from kitbench.env_settings import canonical_size
+from kitbench.envs.interface import as_kitbench
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.compare import _seeds_text
 from kitbench.evaluation.config import COMMAND_LINE, EvalConfig
@@ -182,7 +183,7 @@ def validate(config: EvalConfig) -> Plan:
         policy.reset(env, suite.seeds[0], obs, info)  # policies check the env fits them here
         timestep = env.control_timestep
         fps = env.control_freq
-        env_settings = {**suite_env_settings(suite), "sim": asdict(env.unwrapped.sim_config)}
+        env_settings = {**suite_env_settings(suite), "sim": asdict(as_kitbench(env).sim_config)}
     finally:
         env.close()
     started = time.monotonic()

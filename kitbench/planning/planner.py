@@ -66,7 +66,8 @@ class PhasePlanner(ABC):
     `grasp_attempts` and `failure` (None, or why the expert gave up) let benchmarks sort failures.
 
     `config` (default `default_config()`) is a frozen dataclass of the expert's tunables; the base class reads
-    its `speed_factor`, the fraction of the robot's joint velocity and acceleration limits plans may use.
+    its `speed_factor`, the fraction of the robot's joint velocity and acceleration limits plans may use, and its
+    `drive_lead` where it has one (`DRIVE_LEAD` otherwise).
     """
 
     # Every phase name the expert plays, in the order an episode meets them, "failed" last (`_fail`): what
@@ -89,7 +90,7 @@ class PhasePlanner(ABC):
         kinematics.set_body(self.env.robot.body_qpos())
         self.ik = ArmIK(pose_matrix(self.env.robot.base_pose), kinematics)
         # a PD drive with no velocity target trails a joint moving at v by v * damping / stiffness
-        self.lead = self.cfg.drive_lead * spec.arm_damping / spec.arm_stiffness
+        self.lead = getattr(self.cfg, "drive_lead", DRIVE_LEAD) * spec.arm_damping / spec.arm_stiffness  # optional
         self.sequencer = PhaseSequencer(self.plan_next)
         self.reset()
 

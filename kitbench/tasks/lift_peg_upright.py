@@ -73,13 +73,14 @@ class LiftPegUprightEnv(TabletopEnv):
     max_dense_reward = 3.0
     default_qpos_noise = 0.02
     environment_state_keys = ("peg_pose",)
-    # Fetch's expert needs 121 steps (median; max 138) in pd_joint_pos and 128 (max 145) in pd_joint_delta_pos over
-    # seeds 0-499 within the real arm's joint limits (its wrist turns ~2 rad twice: kitbench/planning/
-    # lift_peg_upright_fetch.py). 170 steps (8.5 s) leave room for the recipes' 10 settling steps and a margin; the
-    # Panda keeps the reference's 50.
+    # Fetch's expert needs 121 steps (median; max 136) in pd_joint_pos and 148 (max 161) in pd_joint_delta_pos over
+    # seeds 0-99 under ManiSkill's drives, within the real arm's joint limits (its wrist turns ~2 rad twice:
+    # kitbench/planning/lift_peg_upright_fetch.py). 170 steps (8.5 s) leave room for the recipes' 10 settling steps
+    # in pd_joint_pos; the Panda keeps the reference's 50.
     # The SO-101's expert (servos at half their no-load speed) needs median 37 steps (max 42) in pd_joint_pos over
-    # seeds 10000-10299 and median 61 (max 69) in pd_joint_delta_pos over seeds 0-99, whose +-0.1 rad steps
-    # it takes at 60%; 100 steps (5 s) leave room for both and for the recipes' settling steps.
+    # seeds 10000-10299 and median 87 (max 99) in pd_joint_delta_pos over seeds 0-99, whose +-0.1 rad steps it takes
+    # at 40% (`MEASURED_DELTA_TRACKING`, set for ManiSkill's Panda drives); 100 steps (5 s) hold both, and the
+    # recipes' settling steps in pd_joint_pos.
     robot_max_episode_steps: ClassVar[dict[str, int]] = {"fetch": 170, "so101": 100}
     supports_object_scale = True  # the peg is built to `object_scale`; success asks for its own half-length
     success_criteria = ("upright", "at_height")
