@@ -73,7 +73,9 @@ def _kitbench_eval(*args: str) -> subprocess.CompletedProcess:
 def test_batches_of_policies_that_act_alone_score_exactly_as_unbatched(tmp_path):
     one = _eval("LiftPegUpright-v1", "state", "expert", tmp_path / "b1", 1, "pd_joint_target_delta_pos")
     for size in (2, 3, 8):  # a last batch shorter than the others; a batch larger than the suite
-        batched = _eval("LiftPegUpright-v1", "state", "expert", tmp_path / f"b{size}", size, "pd_joint_target_delta_pos")
+        batched = _eval(
+            "LiftPegUpright-v1", "state", "expert", tmp_path / f"b{size}", size, "pd_joint_target_delta_pos"
+        )
         assert without_timing(batched) == without_timing(one), size
         assert batched["timing"]["batch_size"] == size and batched["timing"]["device"] == "cpu"
     # the expert's episodes end at different steps, at success: finished episodes wait for their batch

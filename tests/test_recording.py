@@ -39,7 +39,9 @@ def _columns(root: Path) -> dict[str, np.ndarray]:
 def state_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("rec") / "lpu_state"
     summary = record(
-        RecordConfig.of(task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_target_delta_pos"),
+        RecordConfig.of(
+            task="LiftPegUpright-v1", episodes=3, out=out, seed=0, control_mode="pd_joint_target_delta_pos"
+        ),
         progress=False,
     )
     return out, summary
