@@ -269,8 +269,9 @@ def test_bad_input_is_one_line_and_writes_nothing(joint_delta_source, tmp_path, 
 
 
 def _as_recorded_before_the_convention(source: Path, old: Path) -> Path:
-    """A copy of `source` as kitbench wrote it before it took ManiSkill's convention: no `action_convention` and
-    the gripper's sign the other way round in every action column (the simulation's outcome is the same)."""
+    """A copy of `source` as kitbench wrote it before it took ManiSkill's convention: no `action_convention`, the
+    joint deltas in radians and the gripper's sign the other way round in every action column (the simulation's
+    outcome is the same)."""
     import shutil
 
     import pyarrow as pa
@@ -283,7 +284,8 @@ def _as_recorded_before_the_convention(source: Path, old: Path) -> Path:
         table = pq.read_table(path)
         for name in ("action", "executed_action"):
             rows = np.stack(table.column(name).to_numpy(zero_copy_only=False)).copy()
-            rows[:, 7] = -rows[:, 7]  # pd_joint_target_delta_pos on the Panda: 7 joints, then the gripper
+            rows[:, :7] *= 0.1  # pd_joint_target_delta_pos on the Panda: 7 joint deltas in radians, then the gripper
+            rows[:, 7] = -rows[:, 7]
             column = table.schema.get_field_index(name)
             field = table.schema.field(name)
             table = table.set_column(column, field, pa.array(rows.tolist(), type=field.type))
@@ -316,6 +318,6 @@ def test_a_recording_made_before_the_convention_is_refused_or_migrated(joint_del
     summary = record(convert_config(old, migrated), progress=False)
     assert summary.stored == 3 and summary.rejected == 0
     a, src = _columns(migrated), _columns(joint_delta_source)
-    for name in COLUMNS:
-        np.testing.assert_array_equal(a[name], src[name], err_msg=name)
+    for name in COLUMNS:  # radians to ManiSkill's units and back in float32: within its rounding
+        np.testing.assert_allclose(a[name], src[name], atol=1e-5, err_msg=name)
     assert json.loads((migrated / "meta/kitbench_recording.json").read_text())["action_convention"] == "maniskill-3.0.1"

@@ -46,12 +46,23 @@ class SourceRecording:
         return by_seed
 
     def _migrated(self, actions: np.ndarray) -> np.ndarray:
-        """Actions in ManiSkill's convention (`ACTION_CONVENTION`): a recording made before it commanded its gripper
-        with the opposite sign (+1 closed), or in percent the same way round (100 open)."""
+        """Actions in ManiSkill's convention (`ACTION_CONVENTION`). A recording made before it stored them in
+        radians, metres and axis-angle vectors (a real arm's units where its robot has them), its gripper with the
+        opposite sign (+1 closed; a jaw in percent was already 100 open), its body and base entries unscaled."""
         if self.info.action_convention == ACTION_CONVENTION:
             return actions
-        spec = ROBOTS[self.info.robot_uid]
+        from kitbench.control.controllers import make_controller
+        from kitbench.control.kinematics import ArmKinematics
+
+        spec, mode = ROBOTS[self.info.robot_uid], self.info.control_mode
         gripper = actions.shape[1] - 1 - len(spec.extra_action_names)
-        if not spec.units.gripper_percent:  # a jaw in percent always meant 0 closed .. 100 open
-            actions[:, gripper] = -actions[:, gripper]
-        return actions
+        out = actions.astype(np.float64)
+        if not spec.units.expresses(mode):  # then in ManiSkill's form: normalised deltas, Euler rotations
+            controller = make_controller(
+                mode, np.zeros((len(spec.arm_joints), 2)), functools.partial(ArmKinematics, spec)
+            )
+            out[:, :gripper] = [controller.encode(row) for row in out[:, :gripper]]
+        if not spec.units.gripper_percent:
+            out[:, gripper] = -out[:, gripper]
+        out[:, gripper + 1 :] *= spec.extra_action_scale()
+        return out.astype(actions.dtype)
