@@ -56,11 +56,11 @@ def test_cameras_rendered_afterwards_are_the_frames_of_a_direct_recording(joint_
     )
 
 
-@pytest.mark.parametrize("mode", ["pd_joint_pos", "pd_joint_target_delta_pos", "pd_ee_delta_pose"])
+@pytest.mark.parametrize("mode", ["pd_joint_pos", "pd_ee_pose", "pd_ee_target_delta_pose"])
 def test_another_action_space_tracks_the_joint_trajectory(joint_delta_source, tmp_path, mode):
-    """From joint deltas every target fits the other modes' action boxes: every episode reproduces its source,
-    exactly in absolute joint targets, to float rounding in target deltas, within the tolerance in end-effector
-    deltas."""
+    """From joint target deltas every target fits these modes' action boxes: every episode reproduces its source,
+    exactly in absolute joint targets, within the tolerance in end-effector poses and target deltas. (A measured
+    delta mode cannot reach targets that lead the joints by up to 0.4 rad in one step under ManiSkill's drives.)"""
     import gymnasium as gym
 
     out = tmp_path / mode

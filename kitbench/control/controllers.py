@@ -33,6 +33,7 @@ contact or the drives' tracking error did to it instead of restoring it.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -170,8 +171,8 @@ class Controller:
 class _Normalised(Controller):
     """A delta mode: ManiSkill's action in [-1, 1], `DELTA_BOUND` a unit."""
 
-    @property
-    def action_space(self) -> spaces.Box:
+    @functools.cached_property
+    def action_space(self) -> spaces.Box:  # built once: the env reads it every step
         n = self.physical_space.shape[0]
         return spaces.Box(-np.ones(n, dtype=np.float32), np.ones(n, dtype=np.float32), dtype=np.float32)
 

@@ -432,7 +432,7 @@ class TabletopEnv(gym.Env, abc.ABC):
     @property
     def _n_arm(self) -> int:
         """Entries of the action's arm part (before the gripper)."""
-        return self.controller.action_space.shape[0] - 1
+        return self.controller.physical_space.shape[0] - 1
 
     def action_to_sim(self, action: np.ndarray) -> np.ndarray:
         """An action as the action space has it (ManiSkill's form, `Controller.decode`, or the robot's units where
