@@ -51,7 +51,8 @@ if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never
 MEASURED_DELTA_MODES = ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
 TARGET_DELTA_MODES = ("pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose")
 JOINT_DELTA_MODES = ("pd_joint_delta_pos", "pd_joint_target_delta_pos")
-# twice the lag of ManiSkill's gains at 2 rad/s (0.2 rad): at 0.2 the LiftPegUpright expert lost all 40 swings
+# twice the lag of ManiSkill's gains at 2 rad/s (0.2 rad): at 0.2 the LiftPegUpright expert lost all 40 swings in
+# pd_joint_target_delta_pos
 MAX_JOINT_LEAD = 0.4  # rad
 MAX_POS_LEAD = 0.1  # m
 MAX_ROT_LEAD = 0.4  # rad
@@ -87,8 +88,8 @@ class Controller:
     """Keeps the arm's joint target (and, for end-effector modes, the TCP target) between steps.
 
     `action_space` is the action's box as ManiSkill has it; `physical_space` the same action in radians, metres
-    and axis-angle vectors, which `arm_targets` takes; `decode` and `encode` turn one into the other (the arm part,
-    then the gripper, which both leave as it is)."""
+    and axis-angle vectors, which `arm_targets` takes; `decode` and `encode` turn the arm part of one into the other
+    (the gripper's command is the same in both)."""
 
     mode: str
     physical_space: spaces.Box

@@ -90,7 +90,7 @@ class PhasePlanner(ABC):
         kinematics.set_body(self.env.robot.body_qpos())
         self.ik = ArmIK(pose_matrix(self.env.robot.base_pose), kinematics)
         # a PD drive with no velocity target trails a joint moving at v by v * damping / stiffness
-        self.lead = getattr(self.cfg, "drive_lead", DRIVE_LEAD) * spec.arm_damping / spec.arm_stiffness  # optional
+        self.lead = getattr(self.cfg, "drive_lead", DRIVE_LEAD) * spec.arm_damping / spec.arm_stiffness
         self.sequencer = PhaseSequencer(self.plan_next)
         self.reset()
 
