@@ -68,6 +68,15 @@ def test_committed_suites_load_and_avoid_recording_seeds(path):
     assert suite.name == path.stem
 
 
+def test_validation_suites_share_no_seed_with_any_other_suite():
+    """Each task has a `*_val` suite to choose on, disjoint from every suite figures are scored on."""
+    val = [p for p in SUITES if p.stem.endswith("_val")]
+    assert {load_suite(p).task for p in val} == set(kitbench.TASKS)
+    scored = set().union(*(load_suite(p).seeds for p in SUITES if p not in val))
+    for path in val:
+        assert not set(load_suite(path).seeds) & scored, path.stem
+
+
 def test_one_committed_suite_per_task():
     assert {load_suite(p).task for p in SUITES} == set(kitbench.TASKS)
 
