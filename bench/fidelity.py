@@ -93,8 +93,9 @@ def save_episodes(path: Path, episodes: list[dict], keys=("qpos0", "peg0", "acti
     np.savez_compressed(path, **data)
 
 
-def make_env(max_steps: int = 2000):
-    return gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", control_mode="pd_joint_pos").unwrapped, max_steps
+def make_env():
+    """kitbench's LiftPegUpright in ManiSkill's solution's mode, unwrapped: replays run past the task's 50 steps."""
+    return gym.make("kitbench/LiftPegUpright-v1", obs_mode="state", control_mode="pd_joint_pos").unwrapped
 
 
 def replay_in_kitbench(env, seed: int, qpos0: np.ndarray, peg0: np.ndarray, actions: np.ndarray) -> dict:
@@ -110,7 +111,7 @@ def replay_in_kitbench(env, seed: int, qpos0: np.ndarray, peg0: np.ndarray, acti
     return {"success": success, "peg": np.asarray(poses)}
 
 
-def kitbench_expert_episode(env, seed: int, settle: int, max_steps: int) -> dict:
+def kitbench_expert_episode(env, seed: int, settle: int, max_steps: int = 200) -> dict:
     """kitbench's expert from the seed's start in `pd_joint_pos`, run `settle` steps past success: its start, its
     actions and the peg's poses."""
     obs, info = env.reset(seed=seed)
@@ -245,7 +246,7 @@ def main() -> None:
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="kitbench-fidelity-"))
     out.mkdir(parents=True, exist_ok=True)
-    env, max_steps = make_env()
+    env = make_env()
     start = time.perf_counter()
 
     ms_file = out / "maniskill_solution.npz"
@@ -254,7 +255,7 @@ def main() -> None:
     pairs = [(e, replay_in_kitbench(env, e["seed"], e["qpos0"], e["peg0"], e["actions"])) for e in ms_episodes]
     forward = compare("ManiSkill's solution replayed in kitbench", "ManiSkill", "kitbench", pairs, args.verbose)
 
-    kb_episodes = [kitbench_expert_episode(env, s, args.settle, max_steps) for s in parse_seeds(args.expert_seeds)]
+    kb_episodes = [kitbench_expert_episode(env, s, args.settle) for s in parse_seeds(args.expert_seeds)]
     kb_file, back_file = out / "kitbench_expert.npz", out / "kitbench_in_maniskill.npz"
     save_episodes(kb_file, kb_episodes)
     run_maniskill("replay", "--episodes", str(kb_file), "--out", str(back_file))
