@@ -1,7 +1,7 @@
 """`kitbench reproduce <config>`: record, train and score one shipped config as published, and say whether the
 figure lands where the published runs predict a new training seed lands.
 
-The published figures live in `policies/published.toml` (docs/learnability.md has the runs behind them). The run
+The published figures live in `policies/published.toml` (docs/results.md has them all). The run
 records the config's recipe with the published number of demonstrations (`kitbench record`, resumable), trains
 with stock `lerobot-train --config_path=policies/<config>.json` (torch on the published runs' threads, else the
 cores the config's loader workers leave), showing its progress as it goes, and scores the last checkpoint with
@@ -11,88 +11,36 @@ of another request (`--steps`, `--seed`, the threads, the data) is refused befor
 `--overwrite`. The verdict compares the
 run's rate with the 95% prediction interval of a new training seed (`stats.prediction_interval`: this run's
 sampling error, the published figure's, and the spread between its training seeds), not with the pooled
-figure's own interval, which is narrower than any single run's. Training minutes are printed beside the published
-ones scaled to this machine by a fixed reference workload (`kitbench.training.reference`) measured in the same
-run, before the training and again after it.
+figure's own interval, which is narrower than any single run's. Before the training starts, the published
+training minutes are scaled to this machine by a fixed reference workload (`kitbench.training.reference`) timed
+here, and printed as what to expect; the workload is timed again as the training ends.
+
+Each step is its own function: `record_data`, `train_policy`, `score`, `verdict`; `reproduce` runs them in order.
 """
 
 from __future__ import annotations
 
 import json
-import tomllib
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from kitbench.config.checks import optional, positive_int, seed as seed_check
 from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError, check_choice
+from kitbench.published import PUBLISHED, Published, load_published
 from kitbench.shipped import ROOT
+from kitbench.training.reference import reference_seconds
 
-PUBLISHED = ROOT / "policies" / "published.toml"
+if TYPE_CHECKING:  # imported where used: the recorder and the training runner load the simulator's stack
+    from kitbench.recording.config import RecordConfig
+    from kitbench.training.run import Training
+
+__all__ = ["PUBLISHED", "Published", "ReproduceConfig", "check", "load_published", "reproduce"]
 THREADS_VAR = "OMP_NUM_THREADS"
-
-
-@dataclass(frozen=True)
-class Published:
-    """One config's published figure (`policies/published.toml`)."""
-
-    config: str
-    recipe: Path
-    demos: int
-    steps: int
-    seeds: tuple[int, ...]
-    suites: tuple[str, ...]
-    success: int
-    episodes: int
-    interval: tuple[float, float]
-    train_minutes: float
-    eval_batch_size: int = 1
-    reference_seconds: float | None = None
-    threads: int | None = None  # torch's threads in the published trainings (default: the cores workers leave)
-    seed_success: tuple[int, ...] = ()  # each training seed's successes over every suite, and its episodes
-    seed_episodes: tuple[int, ...] = ()
-    extra: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not self.seed_success:  # one figure, one run: it stands for itself
-            object.__setattr__(self, "seed_success", (self.success,))
-            object.__setattr__(self, "seed_episodes", (self.episodes,))
-
-    @property
-    def rate(self) -> float:
-        return self.success / self.episodes
-
-
-def load_published(path: Path = PUBLISHED) -> dict[str, Published]:
-    try:
-        table = tomllib.loads(Path(path).read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise KitbenchError(f"published figures {path} unreadable ({exc})") from None
-    known = {"recipe", "demos", "steps", "seeds", "suites", "success", "episodes", "interval", "train_minutes"}
-    out = {}
-    for name, entry in table.items():
-        missing = sorted(known - set(entry))
-        if missing:
-            raise KitbenchError(f"published figures {path}: [{name}] lacks {', '.join(missing)}")
-        out[name] = Published(
-            config=name,
-            recipe=ROOT / entry["recipe"],
-            demos=int(entry["demos"]),
-            steps=int(entry["steps"]),
-            seeds=tuple(int(s) for s in entry["seeds"]),
-            suites=tuple(entry["suites"]),
-            success=int(entry["success"]),
-            episodes=int(entry["episodes"]),
-            interval=(float(entry["interval"][0]), float(entry["interval"][1])),
-            train_minutes=float(entry["train_minutes"]),
-            eval_batch_size=int(entry.get("eval_batch_size", 1)),
-            reference_seconds=entry.get("reference_seconds"),
-            threads=entry.get("threads"),
-            seed_success=tuple(entry.get("seed_success", ())),
-            seed_episodes=tuple(entry.get("seed_episodes", ())),
-            extra={k: v for k, v in entry.items() if k not in known},
-        )
-    return out
+# Seconds of kitbench.training.reference's workload on N torch threads: the parameter tests measure through.
+Reference = Callable[[int], float]
 
 
 @dataclass
@@ -139,43 +87,102 @@ def check(config: ReproduceConfig) -> Published:
     return entry
 
 
-def reproduce(config: ReproduceConfig, say=print) -> int:
-    """Run the whole loop; 0 when the run lands where the published runs predict a new training seed lands, 3
-    when it does not."""
-    from kitbench.evaluation.stats import prediction_interval, wilson_interval
-    from kitbench.evaluation.suite import load_suite
-    from kitbench.recording.recorder import load_recipe, record
+@dataclass(frozen=True)
+class Run:
+    """What one reproduction records and trains: the checked request and the entry it reproduces."""
+
+    config: ReproduceConfig
+    entry: Published
+    config_path: Path
+    demos: int
+    seed: int
+    recipe: RecordConfig
+    training: Training
+
+    @property
+    def policy_dir(self) -> Path:
+        return self.training.policy_dir
+
+
+def plan(config: ReproduceConfig) -> Run:
+    """The checked request: the recording and the training it asks for, refused before anything runs when it would
+    train over a finished training of another request."""
+    from kitbench.recording.recorder import load_recipe
     from kitbench.training import run
-    from kitbench.training.reference import reference_seconds, scaled_minutes
 
     entry = check(config)
     config_path = ROOT / "policies" / f"{config.config}.json"
     demos = config.demos or entry.demos
     seed = entry.seeds[0] if config.seed is None else config.seed
     data, policy_dir = config.folder / "data", config.folder / f"seed{seed}"
-    say(f"reproducing {config.config}: {demos} demonstrations from {entry.recipe.name}, training seed {seed}")
     recipe = load_recipe(entry.recipe, episodes=demos, out=data, workers=config.workers)
     recipe = recipe.replace(resume=data.exists(), mcap=False)
     threads = run.train_threads(config_path, entry.threads)
     data_stamp = json.dumps(recipe.info().to_json(), sort_keys=True) + f"|{demos}"
     training = run.Training(config_path, data, policy_dir, threads, config.steps, seed, data_stamp=data_stamp)
     run.check_replace(training, config.overwrite)  # before the recording: a refusal costs nothing
-    summary = record(recipe)
-    if summary.exit_code != 0:
-        return summary.exit_code
-    here = reference_seconds(int(threads))
+    return Run(config, entry, config_path, demos, seed, recipe, training)
+
+
+def record_data(planned: Run, say=print) -> int:
+    """Record (or resume) the demonstrations; the recorder's exit status."""
+    from kitbench.recording.recorder import record
+
+    entry = planned.entry
+    say(
+        f"reproducing {planned.config.config}: {planned.demos} demonstrations from {entry.recipe.name}, training "
+        f"seed {planned.seed}"
+    )
+    return record(planned.recipe).exit_code
+
+
+def expectation(entry: Published, here: float, threads: int, steps: int | None = None) -> str:
+    """What the training should take on this machine, from the published minutes and the two reference workloads."""
+    minutes = entry.train_minutes_here(here, steps)
+    updates = steps or entry.steps
+    if minutes is None:
+        return (
+            f"expected training time: not scaled here (the published {entry.train_minutes:.1f} min on "
+            f"{entry.device} came without a reference workload); this machine's reference {here:.1f} s on {threads} "
+            "thread(s)"
+        )
+    return (
+        f"expected training time: about {minutes:.1f} min here for {updates} steps (published "
+        f"{entry.train_minutes:.1f} min for {entry.steps} on {entry.device}, whose reference workload took "
+        f"{entry.reference_seconds:.1f} s; "
+        f"here {here:.1f} s on {threads} thread(s))"
+    )
+
+
+def train_policy(planned: Run, say=print, measure: Reference = reference_seconds) -> tuple[dict, float]:
+    """Time the reference workload, say what the training should take here, then train (or reuse the checkpoint
+    the same request trained); what `run.train` returns and the reference seconds."""
+    from kitbench.training import run
+
+    training = planned.training
+    threads = int(training.threads)
+    here = measure(threads)
+    say(expectation(planned.entry, here, threads, planned.config.steps))
     request = training.request()
     say(f"training: {run.shell_line(request['command'], request['env'])}")
-    say(f"  its log: {policy_dir / 'train.log'}")
+    say(f"  its log: {planned.policy_dir / 'train.log'}")
     try:
-        trained = run.train(training, progress=True, overwrite=config.overwrite)
+        trained = run.train(training, progress=True, overwrite=planned.config.overwrite)
     except run.CommandFailed as exc:
         raise KitbenchError(f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}") from None
-    minutes = trained["seconds"] / 60
     if trained["reused"]:
-        say(f"  reused the checkpoint the same command trained ({minutes:.1f} min then)")
+        say(f"  reused the checkpoint the same command trained ({trained['seconds'] / 60:.1f} min then)")
+    return trained, here
+
+
+def score(planned: Run, trained: dict, say=print) -> tuple[int, int]:
+    """Score the checkpoint on every published suite; successes and episodes over them all."""
+    from kitbench.evaluation.suite import load_suite
+    from kitbench.training import run
+
+    config, entry = planned.config, planned.entry
     successes = episodes = 0
-    control_mode = json.loads(config_path.read_text()).get("env", {}).get("control_mode")
+    control_mode = json.loads(planned.config_path.read_text()).get("env", {}).get("control_mode")
     for name in entry.suites:
         suite = ROOT / "eval" / "suites" / f"{name}.toml"
         first = load_suite(suite).seeds[: config.eval_episodes]
@@ -199,6 +206,14 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
         successes += report["success"]["count"]
         episodes += report["episodes"]
         say(f"  {report['success']['count']}/{report['episodes']}")
+    return successes, episodes
+
+
+def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: float, say=print) -> int:
+    """Compare the run with where a new training seed lands, say so, write reproduce.json; 0 inside, 3 outside."""
+    from kitbench.evaluation.stats import prediction_interval, wilson_interval
+
+    config, entry = planned.config, planned.entry
     lo, hi = wilson_interval(successes, episodes)
     rate = successes / episodes
     expected = prediction_interval(list(entry.seed_success), list(entry.seed_episodes), episodes)
@@ -207,45 +222,48 @@ def reproduce(config: ReproduceConfig, say=print) -> int:
     say(
         f"published: {entry.success}/{entry.episodes} = {entry.rate:.1%} ({entry.interval[0]:.1%}–"
         f"{entry.interval[1]:.1%}; training seeds {', '.join(map(str, entry.seeds))} at "
-        f"{', '.join(f'{s / n:.1%}' for s, n in zip(entry.seed_success, entry.seed_episodes, strict=True))}; suites "
-        f"{', '.join(entry.suites)})"
+        f"{', '.join(f'{r:.1%}' for r in entry.seed_rates)}; suites {', '.join(entry.suites)})"
     )
     say(
         f"a new training seed scored on {episodes} episodes is expected at {expected[0]:.1%}–{expected[1]:.1%} (95%: "
         "this run's sampling error, the published figure's and the spread between its training seeds)"
     )
-    verdict = (
+    say(
         "consistent with the published figure"
         if inside
         else ("below" if rate < expected[0] else "above") + " what the published runs predict"
     )
-    say(verdict)
-    scaled = ""
-    if entry.reference_seconds:
-        there = scaled_minutes(entry.train_minutes, entry.reference_seconds, here)
-        scaled = f"; the published {entry.train_minutes:.1f} min are {there:.1f} here"
-    after = trained["reference_after"]
+    minutes, after = trained["seconds"] / 60, trained["reference_after"]
+    there = entry.train_minutes_here(here)  # the published run's steps, as published
+    scaled = "" if there is None else f"; the published {entry.train_minutes:.1f} min are {there:.1f} here"
     say(
         f"training: {minutes:.1f} min for {trained['steps']} steps (reference workload {here:.1f} s before it, "
         f"{after:.1f} s after{scaled})"
     )
-    (config.folder / "reproduce.json").write_text(
-        json.dumps(
-            {
-                "config": config.config,
-                "success": successes,
-                "episodes": episodes,
-                "ci95": [lo, hi],
-                "published_interval": list(entry.interval),
-                "expected": list(expected),
-                "inside": inside,
-                "train_minutes": minutes,
-                "reference_seconds": here,
-                "reference_seconds_after_training": after,
-                "train_command": trained["command"],
-            },
-            indent=1,
-        )
-        + "\n"
-    )
+    result = {
+        "config": config.config,
+        "success": successes,
+        "episodes": episodes,
+        "ci95": [lo, hi],
+        "published_interval": list(entry.interval),
+        "expected": list(expected),
+        "inside": inside,
+        "train_minutes": minutes,
+        "reference_seconds": here,
+        "reference_seconds_after_training": after,
+        "train_command": trained["command"],
+    }
+    (config.folder / "reproduce.json").write_text(json.dumps(result, indent=1) + "\n")
     return 0 if inside else 3
+
+
+def reproduce(config: ReproduceConfig, say=print, measure: Reference = reference_seconds) -> int:
+    """Record, train, score and judge: 0 when the run lands where the published runs predict a new training seed
+    lands, 3 when it does not. `measure`: the reference workload's seconds on N threads."""
+    planned = plan(config)
+    status = record_data(planned, say)
+    if status != 0:
+        return status
+    trained, here = train_policy(planned, say, measure)
+    successes, episodes = score(planned, trained, say)
+    return verdict(planned, successes, episodes, trained, here, say)

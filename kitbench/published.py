@@ -1,0 +1,179 @@
+"""The published figures, `policies/published.toml`, read and checked in one place: `kitbench reproduce`,
+`bench/learnability.py` and the generated tables (`kitbench.figures`) all read them through `load_published`.
+
+Each row keeps two sets of training seeds apart (docs/results.md, "Method"): `selection_seeds`, the seeds the config
+and its recipe were chosen on, and `heldout_seeds`, drawn once and never used to choose anything. `figure_seeds`
+says which set the row's figure pools: "selection" until the row is measured on its held-out seeds. A row's
+interval is the Wilson 95% interval of its pooled successes, computed, never written.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from kitbench.errors import KitbenchError
+from kitbench.shipped import ROOT
+from kitbench.training.reference import scaled_minutes
+
+PUBLISHED = ROOT / "policies" / "published.toml"
+FIGURE_SEEDS = ("selection", "heldout")
+# a figure from held-out seeds pools at least this many (issue's target: a spread between seeds to predict from)
+MIN_HELDOUT = 3
+REQUIRED = (
+    "recipe",
+    "demos",
+    "steps",
+    "selection_seeds",
+    "heldout_seeds",
+    "figure_seeds",
+    "suites",
+    "success",
+    "episodes",
+    "train_minutes",
+    "device",
+)
+OPTIONAL = (
+    "seed_success",
+    "seed_episodes",
+    "eval_minutes",
+    "eval_batch_size",
+    "reference_seconds",
+    "threads",
+)
+
+
+@dataclass(frozen=True)
+class Published:
+    """One config's published figure (`policies/published.toml`)."""
+
+    config: str
+    recipe: Path
+    demos: int
+    steps: int
+    selection_seeds: tuple[int, ...]  # chose the config and its recipe
+    heldout_seeds: tuple[int, ...]  # drawn once, never used to choose anything
+    figure_seeds: str  # which of the two sets the figure pools: "selection" or "heldout"
+    suites: tuple[str, ...]
+    success: int
+    episodes: int
+    train_minutes: float
+    device: str  # the machine the minutes were measured on
+    eval_minutes: float | None = None
+    eval_batch_size: int = 1
+    reference_seconds: float | None = None  # kitbench.training.reference on that machine, on the training's threads
+    threads: int | None = None  # torch's threads in the published trainings (default: the cores workers leave)
+    seed_success: tuple[int, ...] = ()  # each training seed's successes over every suite, and its episodes
+    seed_episodes: tuple[int, ...] = ()
+    extra: dict = field(default_factory=dict)  # the optional keys as written, for readers that predate their fields
+
+    def __post_init__(self) -> None:
+        if not self.seed_success:  # one figure, one run: it stands for itself
+            object.__setattr__(self, "seed_success", (self.success,))
+            object.__setattr__(self, "seed_episodes", (self.episodes,))
+
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """The training seeds the figure pools, in order: `kitbench reproduce` trains the first by default."""
+        return self.selection_seeds if self.figure_seeds == "selection" else self.heldout_seeds
+
+    @property
+    def rate(self) -> float:
+        return self.success / self.episodes
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        """The pooled figure's Wilson 95% interval."""
+        from kitbench.evaluation.stats import wilson_interval
+
+        return wilson_interval(self.success, self.episodes)
+
+    @property
+    def seed_rates(self) -> tuple[float, ...]:
+        return tuple(s / n for s, n in zip(self.seed_success, self.seed_episodes, strict=True))
+
+    def train_minutes_here(self, here: float, steps: int | None = None) -> float | None:
+        """The published training minutes on a machine whose reference workload took `here` s, for `steps` updates
+        (default: the published run's); None when the row has no reference to scale by."""
+        if not self.reference_seconds:
+            return None
+        minutes = self.train_minutes * (steps / self.steps if steps else 1.0)
+        return scaled_minutes(minutes, self.reference_seconds, here)
+
+    def eval_minutes_here(self, here: float) -> float | None:
+        """One suite's published scoring minutes on a machine whose reference workload took `here` s."""
+        if not self.reference_seconds or self.eval_minutes is None:
+            return None
+        return scaled_minutes(self.eval_minutes, self.reference_seconds, here)
+
+
+def _seeds(where: str, key: str, value: object) -> tuple[int, ...]:
+    if not isinstance(value, list) or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in value):
+        raise KitbenchError(f"{where}: {key} is {value!r}; give a list of non-negative integers")
+    if len(set(value)) != len(value):
+        raise KitbenchError(f"{where}: {key} {value} repeats a seed")
+    return tuple(value)
+
+
+def parse_row(name: str, entry: dict, where: str) -> Published:
+    """One row, checked: every required key, no unknown one, the seed sets disjoint, a figure for each seed."""
+    where = f"{where}: [{name}]"
+    missing = [k for k in REQUIRED if k not in entry]
+    if missing:
+        raise KitbenchError(f"{where} lacks {', '.join(missing)}")
+    unknown = sorted(set(entry) - set(REQUIRED) - set(OPTIONAL))
+    if unknown:
+        raise KitbenchError(f"{where}: unknown key {unknown[0]!r}; valid keys: {', '.join(REQUIRED + OPTIONAL)}")
+    selection = _seeds(where, "selection_seeds", entry["selection_seeds"])
+    heldout = _seeds(where, "heldout_seeds", entry["heldout_seeds"])
+    shared = sorted(set(selection) & set(heldout))
+    if shared:
+        raise KitbenchError(
+            f"{where}: heldout_seeds share {', '.join(map(str, shared))} with selection_seeds; a held-out seed "
+            "is one never used to choose anything"
+        )
+    if entry["figure_seeds"] not in FIGURE_SEEDS:
+        raise KitbenchError(
+            f"{where}: figure_seeds is {entry['figure_seeds']!r}; valid choices: {', '.join(FIGURE_SEEDS)}"
+        )
+    if entry["figure_seeds"] == "heldout" and len(heldout) < MIN_HELDOUT:
+        raise KitbenchError(f"{where}: a figure from held-out seeds pools at least {MIN_HELDOUT}; got {list(heldout)}")
+    row = Published(
+        config=name,
+        recipe=ROOT / entry["recipe"],
+        demos=int(entry["demos"]),
+        steps=int(entry["steps"]),
+        selection_seeds=selection,
+        heldout_seeds=heldout,
+        figure_seeds=entry["figure_seeds"],
+        suites=tuple(entry["suites"]),
+        success=int(entry["success"]),
+        episodes=int(entry["episodes"]),
+        train_minutes=float(entry["train_minutes"]),
+        device=str(entry["device"]),
+        eval_minutes=None if "eval_minutes" not in entry else float(entry["eval_minutes"]),
+        eval_batch_size=int(entry.get("eval_batch_size", 1)),
+        reference_seconds=None if "reference_seconds" not in entry else float(entry["reference_seconds"]),
+        threads=None if "threads" not in entry else int(entry["threads"]),
+        seed_success=tuple(int(s) for s in entry.get("seed_success", ())),
+        seed_episodes=tuple(int(n) for n in entry.get("seed_episodes", ())),
+        extra={k: entry[k] for k in (*OPTIONAL, "device") if k in entry},
+    )
+    if not 0 <= row.success <= row.episodes:
+        raise KitbenchError(f"{where}: success {row.success} is not within 0..episodes {row.episodes}")
+    if len(row.seed_success) != len(row.seeds) or len(row.seed_episodes) != len(row.seeds):
+        raise KitbenchError(
+            f"{where}: seed_success and seed_episodes give {len(row.seed_success)} and {len(row.seed_episodes)} "
+            f"figures for the {len(row.seeds)} {row.figure_seeds} seeds"
+        )
+    return row
+
+
+def load_published(path: Path = PUBLISHED) -> dict[str, Published]:
+    """Every row of `path`, in the file's order; a bad row is one line naming the row and what is wrong."""
+    try:
+        table = tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise KitbenchError(f"published figures {path} unreadable ({exc})") from None
+    return {name: parse_row(name, entry, f"published figures {path}") for name, entry in table.items()}
