@@ -72,13 +72,13 @@ from kitbench.evaluation.significance import newcombe_interval
 from kitbench.evaluation.stats import wilson_interval
 from kitbench.evaluation.suite import load_suite
 from kitbench.metadata import read_recording_settings
+from kitbench.published import Published, load_published
 from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
 from kitbench.registration import canonical_task, task_entry
 from kitbench.training import run
-from kitbench.training.reference import reference_seconds, scaled_minutes
+from kitbench.training.reference import reference_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
-PUBLISHED = ROOT / "policies" / "published.toml"
 SUITE_NAMES = {"standard": "{snake}.toml", "heldout": "{snake}_heldout.toml"}
 BIN = run.BIN
 OBS_CHOICES = ("state", "rgb")
@@ -292,6 +292,7 @@ def check_args(args: argparse.Namespace) -> Plan:
     recipe = Path(args.recipe) if args.recipe else _default_path("datasets", f"{name}.toml", "recipe", "*.toml")
     recipe_data = _check_recipe(recipe, task, args.obs)
     env = config_data.get("env") or {}
+    published = published_entry(config)
     recorded_mode = recipe_data.get("control_mode") or _record_default("control_mode")
     if args.control_mode is None and env.get("control_mode", recorded_mode) != recorded_mode:
         # a policy trained on one action space and run in another fails for no reason the table could show
@@ -330,7 +331,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         control_mode=args.control_mode or recorded_mode,
         control_mode_flag=args.control_mode,
         config_has_env=bool(env),
-        train_threads=run.train_threads(config, (published_entry(config) or {}).get("threads")),
+        train_threads=run.train_threads(config, published.threads if published else None),
         action_noise=args.action_noise,
         noise_phases=args.noise_phases,
         settle_steps=args.settle_steps,
@@ -650,13 +651,10 @@ def pooled(rows: list[dict]) -> list[str]:
     return lines
 
 
-def published_entry(config: Path) -> dict | None:
-    """The config's published figures (policies/published.toml), if it has any."""
-    import tomllib
-
-    if not PUBLISHED.is_file():
-        return None
-    return tomllib.loads(PUBLISHED.read_text()).get(config.stem)
+def published_entry(config: Path) -> Published | None:
+    """The config's published figures (policies/published.toml, read as `kitbench reproduce` reads them), if it has
+    any."""
+    return load_published().get(config.stem)
 
 
 def print_cost(plan: Plan, reference_s: float) -> None:
@@ -669,17 +667,16 @@ def print_cost(plan: Plan, reference_s: float) -> None:
         f"evaluation(s) on {', '.join(name for name, _ in plan.suites)}; reference workload here: {reference_s:.1f} s"
     )
     entry = published_entry(plan.config)
-    if not entry or "reference_seconds" not in entry:
+    train_min = None if entry is None else entry.train_minutes_here(reference_s, plan.steps)
+    if entry is None or train_min is None:
         print("cost: no published training time for this config to scale (policies/published.toml)")
         return
-    scale = plan.steps / entry["steps"] if plan.steps else 1.0
-    train_min = scaled_minutes(entry["train_minutes"] * scale, entry["reference_seconds"], reference_s)
-    eval_min = scaled_minutes(entry.get("eval_minutes", 0.0), entry["reference_seconds"], reference_s)
+    eval_min = entry.eval_minutes_here(reference_s) or 0.0
     total = trainings * train_min + evaluations * eval_min
     print(
         f"cost: about {total / 60:.1f} h here: {train_min:.0f} min a training, {eval_min:.0f} min an evaluation "
-        f"(published {entry['train_minutes']} and {entry.get('eval_minutes', '?')} min on a machine whose reference "
-        f"took {entry['reference_seconds']} s); recordings not counted"
+        f"(published {entry.train_minutes} and {'?' if entry.eval_minutes is None else entry.eval_minutes} min on a "
+        f"machine whose reference took {entry.reference_seconds} s); recordings not counted"
     )
 
 
