@@ -11,7 +11,7 @@ PYTEST_WORKERS ?= auto
 # What ruff formats and lints (it picks the Python files out of these folders).
 LINT_PATHS := kitbench tests bench integrations scripts
 
-.PHONY: demo test lint fmt bench doctor bootstrap system robot-assets clean
+.PHONY: demo test lint fmt bench results doctor bootstrap system robot-assets clean
 
 system:
 	@bash scripts/bootstrap-system.sh
@@ -53,6 +53,11 @@ fmt: bootstrap
 
 bench: bootstrap
 	@$(PY) bench/run.py
+
+# docs/results.md, policies/README.md's results and the README's headline, from policies/published.toml (edit that,
+# then run this; a test fails while they differ).
+results: bootstrap
+	@$(PY) -m kitbench.figures
 
 doctor: bootstrap
 	@$(PY) -m kitbench.cli doctor
