@@ -1,0 +1,159 @@
+"""Every published figure from one source: docs/results.md, policies/README.md's results and the README's headline
+are what `make results` makes from policies/published.toml; the reader refuses a row whose held-out seeds were used
+to choose, and the held-out seeds are the documented draw's; `kitbench reproduce` says what its training should take
+here before it trains."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from kitbench import figures
+from kitbench.errors import KitbenchError
+from kitbench.published import PUBLISHED, load_published
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = "act_lift_peg_upright_state"
+
+
+def test_the_generated_figures_match_published_toml():
+    for path, text in figures.render(ROOT).items():
+        assert path.read_text() == text, f"{path.relative_to(ROOT)} differs from policies/published.toml: make results"
+
+
+def test_a_changed_figure_changes_every_generated_file_the_headline_included():
+    published = load_published()
+    changed = dict(published)
+    changed[CONFIG] = dataclasses.replace(published[CONFIG], success=550, seed_success=(182, 185, 183))
+    before, after = figures.render(ROOT, published), figures.render(ROOT, changed)
+    assert all(before[p] != after[p] for p in before), "a generated file does not show the row"
+    assert "This loop reaches 91.7% (95% CI 89.2–93.6%)" in after[ROOT / "README.md"]
+
+
+def test_a_file_without_its_markers_is_refused_in_one_line(tmp_path):
+    for name, *_ in figures.REGIONS:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text((ROOT / name).read_text())
+    (tmp_path / "policies" / "published.toml").write_text(PUBLISHED.read_text())
+    (tmp_path / "README.md").write_text("no markers\n")
+    with pytest.raises(KitbenchError) as refused:
+        figures.render(tmp_path)
+    assert str(refused.value).startswith("README.md: needs one '<!-- make results: headline -->'")
+    assert "\n" not in str(refused.value)
+
+
+def _draw_section() -> tuple[str, str]:
+    text = (ROOT / "docs" / "results.md").read_text().split("### The held-out draw", 1)[1]
+    code = re.search(r"```python\n(.*?)```", text, re.S)
+    output = re.search(r"```text\n(.*?)```", text, re.S)
+    assert code and output, "docs/results.md's draw lacks its code or its output"
+    return code.group(1), output.group(1)
+
+
+def test_the_heldout_seeds_are_the_documented_draw_and_disjoint_from_the_selection_seeds():
+    code, output = _draw_section()
+    ran = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert ran.stdout == output  # the code, run again, prints what the document says it printed
+    drawn = {line.split(": ")[0]: json.loads(line.split(": ")[1]) for line in output.splitlines()}
+    published = load_published()
+    assert list(drawn) == list(published)
+    for name, entry in published.items():
+        assert list(entry.heldout_seeds) == drawn[name], name
+        assert len(entry.heldout_seeds) >= 3 and not set(entry.heldout_seeds) & set(entry.selection_seeds)
+        # every figure so far pools the seeds that chose it; reproduce's default seed stays the first of them
+        assert entry.figure_seeds == "selection" and entry.seeds[0] == 1000
+        # the pooled figure is its training seeds' figures added up
+        assert (sum(entry.seed_success), sum(entry.seed_episodes)) == (entry.success, entry.episodes), name
+
+
+def _row(**changes: str) -> str:
+    """The CONFIG row of published.toml with `changes` (key = its TOML value) written over it."""
+    text = PUBLISHED.read_text()
+    start = text.index(f"[{CONFIG}]")
+    entry = text[start : text.index("\n[", start)]
+    for key, value in changes.items():
+        entry, replaced = re.subn(rf"(?m)^{key} = .*$", f"{key} = {value}", entry)
+        if not replaced:
+            entry += f"\n{key} = {value}"
+    return entry
+
+
+@pytest.mark.parametrize(
+    "changes,message",
+    [
+        (
+            {"heldout_seeds": "[2000, 50000, 60000]"},
+            "heldout_seeds share 2000 with selection_seeds; a held-out seed is one never used to choose anything",
+        ),
+        ({"figure_seeds": '"test"'}, "figure_seeds is 'test'; valid choices: selection, heldout"),
+        (
+            {"figure_seeds": '"heldout"', "heldout_seeds": "[50000, 60000]", "seed_success": "[183, 368]"},
+            "a figure from held-out seeds pools at least 3; got [50000, 60000]",
+        ),
+        ({"seed_success": "[183, 368]"}, "seed_success and seed_episodes give 2 and 3 figures for the 3 selection"),
+        ({"selection_seeds": "[1000, 1000, 3000]"}, "selection_seeds [1000, 1000, 3000] repeats a seed"),
+        ({"interval": "[0.89, 0.94]"}, "unknown key 'interval'; valid keys: recipe, demos"),
+    ],
+)
+def test_a_bad_row_is_refused_in_one_line_naming_it(tmp_path, changes, message):
+    path = tmp_path / "published.toml"
+    path.write_text(_row(**changes))
+    with pytest.raises(KitbenchError) as refused:
+        load_published(path)
+    assert str(refused.value).startswith(f"published figures {path}: [{CONFIG}]") and "\n" not in str(refused.value)
+    assert message in str(refused.value)
+
+
+def test_the_learnability_bench_reads_the_same_rows_as_reproduce():
+    sys.path.insert(0, str(ROOT))
+    from bench import learnability
+
+    for name, entry in load_published().items():
+        assert learnability.published_entry(ROOT / "policies" / f"{name}.json") == entry
+    assert learnability.published_entry(ROOT / "policies" / "act_lift_peg_upright_fetch_rgb.json") is None
+
+
+def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_path):
+    from kitbench.reproduce import ReproduceConfig, plan, train_policy
+    from kitbench.training import run
+
+    planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=5000))
+    # a finished training of this very request: train_policy reuses it, and nothing runs lerobot-train
+    checkpoint = planned.training.train_dir / "checkpoints" / "last" / "pretrained_model"
+    checkpoint.mkdir(parents=True)
+    (checkpoint / "model.safetensors").write_bytes(b"weights")
+    trained = {"seconds": 60.0, "steps": 5000, "reference_after": 6.4, "command": []}
+    (planned.policy_dir / run.TRAIN_STAMP).write_text(
+        json.dumps({"request": planned.training.request(), "trained": trained})
+    )
+    said: list[str] = []
+    threads: list[int] = []
+
+    def twice_as_slow(n: int) -> float:  # this machine's reference workload: 6.4 s against the published 3.2
+        threads.append(n)
+        return 6.4
+
+    result, here = train_policy(planned, said.append, measure=twice_as_slow)
+    assert result["reused"] is True and here == 6.4 and threads == [1]  # the state config's published thread
+    # half the published 10,000 steps, on a machine twice as slow: the published 13.5 minutes
+    assert said[0] == (
+        "expected training time: about 13.5 min here for 5000 steps (published 13.5 min for 10000 on 2 CPU cores, "
+        "whose reference workload took 3.2 s; here 6.4 s on 1 thread(s))"
+    )
+    assert said[1].startswith("training: OMP_NUM_THREADS=1 ")
+
+
+def test_a_row_without_a_reference_workload_is_not_scaled():
+    from kitbench.reproduce import expectation
+
+    gpu = load_published()["act_lift_peg_upright_rgb"]
+    assert gpu.train_minutes_here(2.0) is None
+    assert expectation(gpu, 2.0, 8).startswith(
+        "expected training time: not scaled here (the published 6.4 min on one H100 came without a reference workload)"
+    )
