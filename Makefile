@@ -9,7 +9,7 @@ PYTEST_ARGS ?=
 # pytest-xdist workers (a core each; 0: one process); a test file stays on one worker, so its module fixtures are built once.
 PYTEST_WORKERS ?= auto
 # What ruff formats and lints (it picks the Python files out of these folders).
-LINT_PATHS := kitbench tests bench integrations scripts
+LINT_PATHS := kitbench tests bench studies integrations scripts
 
 .PHONY: demo test lint fmt bench results doctor bootstrap system robot-assets clean
 

@@ -1,4 +1,4 @@
-"""bench/gpu_run.py, the lent GPU machine's prepared run: what it reads of lerobot-train's log and nvidia-smi's
+"""studies/gpu/gpu_run.py, the lent GPU machine's prepared run: what it reads of lerobot-train's log and nvidia-smi's
 samples, and its bad arguments."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.gpu_run import first_step_seconds, gpu_summary, main, slowest_imports, step_window
+from studies.gpu.gpu_run import first_step_seconds, gpu_summary, main, slowest_imports, step_window
 
 # lerobot-train's output as it reads in the log (tqdm's carriage returns already turned into newlines)
 LOG = """INFO 2026-11-28 06:49:02 ot_train.py:447 Effective batch size: 64 x 1 = 64
@@ -92,7 +92,7 @@ def test_bad_arguments_are_one_line(argv, needle, tmp_path, capsys):
 
 
 def test_a_tagged_variant_keeps_its_own_log_beside_the_shipped_configs(tmp_path, monkeypatch):
-    import bench.gpu_run as gpu_run
+    import studies.gpu.gpu_run as gpu_run
 
     def fake_run(cmd, log, env=None):
         batch = next((a.split("=")[1] for a in cmd if a.startswith("--batch_size=")), "64")
@@ -113,7 +113,7 @@ def test_a_tagged_variant_keeps_its_own_log_beside_the_shipped_configs(tmp_path,
     assert "size: 256 x" in (logs / "train_act_lift_peg_upright_rgb_after_b256.log").read_text()
 
 
-LEARN_SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "gpu_learn.sh"
+LEARN_SCRIPT = Path(__file__).resolve().parents[1] / "studies" / "gpu" / "gpu_learn.sh"
 
 
 def test_the_learn_script_runs_both_trainings_each_with_its_variant_as_one_argument(tmp_path):
@@ -163,7 +163,7 @@ def _recording(root: Path, task: str, image_shape: list[int], files: dict[str, i
 
 
 def test_packed_recordings_come_back_whole_from_their_folders_and_a_lost_file_is_named(tmp_path):
-    from bench.gpu_pack import check, pack
+    from studies.gpu.gpu_pack import check, pack
 
     kib = 1024
     files = {"videos/a.mp4": 600 * kib, "data/a.parquet": 300 * kib}
@@ -184,7 +184,7 @@ def test_packed_recordings_come_back_whole_from_their_folders_and_a_lost_file_is
 
 
 def test_a_packed_file_larger_than_a_folder_is_refused(tmp_path):
-    from bench.gpu_pack import main as pack_main
+    from studies.gpu.gpu_pack import main as pack_main
 
     ak = _recording(tmp_path / "ak", "AssemblingKits-v1", [64, 64, 3], {"videos/a.mp4": 2 * 2**20})
     with pytest.raises(SystemExit, match=r"ak/videos/a\.mp4 is larger than --mib 1"):
@@ -220,7 +220,7 @@ def test_a_carried_recording_that_does_not_suit_the_config_is_refused_before_tra
 def test_the_learn_script_receives_packed_folders_and_trains_on_them_once_they_are_whole(tmp_path):
     """Each command's packed folder is copied off at once (the next command's carry removes it); the run then
     trains on the recordings with --data, after the manifest finds every file."""
-    from bench.gpu_pack import pack
+    from studies.gpu.gpu_pack import pack
 
     ak = _recording(tmp_path / "ak", "AssemblingKits-v1", [64, 64, 3], {"videos/a.mp4": 600 * 1024})
     lpu = _recording(tmp_path / "lpu", "LiftPegUpright-v1", [128, 128, 3], {"videos/b.mp4": 500 * 1024})
@@ -257,7 +257,7 @@ def test_the_learn_script_receives_packed_folders_and_trains_on_them_once_they_a
     calls.unlink()
     done = subprocess.run(["bash", str(LEARN_SCRIPT), "run", str(kb)], env=env, capture_output=True, text=True)
     assert "ak/videos/a.mp4 is missing" in (kb / "run.log").read_text()
-    assert [json.loads(line)[0] for line in calls.read_text().splitlines()] == ["bench/gpu_pack.py"]
+    assert [json.loads(line)[0] for line in calls.read_text().splitlines()] == ["studies/gpu/gpu_pack.py"]
 
 
 def test_receiving_with_no_packed_folder_is_one_line(tmp_path):

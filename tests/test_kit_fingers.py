@@ -1,5 +1,6 @@
 """Where the open fingertips come down around a shape and how clear of obstacles they are (pure geometry, no
-simulator): what the expert chooses its grasp by and bench/grasp_misses.py measures a policy's grasps by."""
+simulator): what the expert chooses its grasp by and studies/assembling_kits_grasp/grasp_misses.py measures a policy's
+grasps by."""
 
 from __future__ import annotations
 

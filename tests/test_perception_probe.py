@@ -1,5 +1,5 @@
-"""bench/perception_probe.py: what an image policy's encoder can read of the AssemblingKits slot from a
-recording's cameras, scored on held-out episodes."""
+"""studies/assembling_kits_pixels/perception_probe.py: what an image policy's encoder can read of the AssemblingKits
+slot from a recording's cameras, scored on held-out episodes."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.perception_probe import Recording, main, score, split
+from studies.assembling_kits_pixels.perception_probe import Recording, main, score, split
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -82,7 +82,7 @@ def test_the_turning_figure_counts_only_frames_still_to_turn():
 
 
 def test_the_carried_figures_count_only_frames_with_the_shape_up_in_the_hand_and_still_to_turn():
-    from bench.perception_probe import lifted_frames
+    from studies.assembling_kits_pixels.perception_probe import lifted_frames
 
     square = math.pi / 2
     recording = _recording(square)
@@ -119,7 +119,7 @@ def test_the_over_the_slot_figure_counts_only_carried_frames_within_2_cm_of_the_
 
 
 def test_each_shapes_carried_mean_is_what_knowing_the_shape_gives_the_yaw_in_the_hand():
-    from bench.perception_probe import baselines
+    from studies.assembling_kits_pixels.perception_probe import baselines
 
     square = math.pi / 2
     base = _recording(square)
@@ -171,7 +171,7 @@ def test_the_shape_yaw_and_its_yaw_in_the_hand_are_folded_by_its_symmetry():
 def test_the_yaw_in_the_hand_is_the_shapes_less_the_hands_folded_by_its_symmetry(
     symmetry, shape_deg, hand_deg, in_hand_deg
 ):
-    from bench.perception_probe import in_hand_yaw
+    from studies.assembling_kits_pixels.perception_probe import in_hand_yaw
 
     hand = math.radians(hand_deg)
     got = in_hand_yaw(
@@ -194,7 +194,7 @@ def test_the_yaw_in_the_hand_is_the_shapes_less_the_hands_folded_by_its_symmetry
     ],
 )
 def test_the_hand_over_the_slot_is_the_slots_yaw_less_the_yaw_in_the_hand(symmetry, slot_deg, in_hand_deg, hand_deg):
-    from bench.perception_probe import hand_over_slot
+    from studies.assembling_kits_pixels.perception_probe import hand_over_slot
 
     order = np.array([2 * math.pi / symmetry])
     got = hand_over_slot(np.array([_folded(slot_deg, symmetry)]), np.array([_folded(in_hand_deg, symmetry)]), order)
@@ -318,7 +318,7 @@ def test_the_probe_trains_each_encoder_and_scores_held_out_episodes(
     assert row["with_state"] is True and math.isfinite(row["at"]["1"]["grip_deg"])
 
     # the state reaches the head: an arm state of NaN makes the loss NaN with --with-state, and only with it
-    import bench.perception_probe as probe
+    import studies.assembling_kits_pixels.perception_probe as probe
 
     recording = probe.read_recording(kits_rgb)
     nan_state = dataclasses.replace(recording, state=np.full_like(recording.state, np.nan))
@@ -354,7 +354,13 @@ def test_a_folder_that_is_not_a_recording_is_one_line(tmp_path, capsys):
 def test_the_trained_encoder_starts_a_policy_that_stock_lerobot_train_loads(kits_rgb, tmp_path, needs_vulkan):
     from safetensors.torch import load_file
 
-    from bench.perception_probe import open_dataset, read_recording, split, train_and_score, write_starting_policy
+    from studies.assembling_kits_pixels.perception_probe import (
+        open_dataset,
+        read_recording,
+        split,
+        train_and_score,
+        write_starting_policy,
+    )
     from tests.lerobot_cli import lerobot_train
 
     config = ROOT / "policies" / "act_assembling_kits_rgb_cpu.json"

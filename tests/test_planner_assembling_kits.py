@@ -179,11 +179,11 @@ def test_chosen_turn_reaches_an_equivalent_goal_yaw_within_joint7_limits(env, se
         assert abs(rotation) <= u.shape.symmetry / 2 + math.pi + 1e-9
 
 
-# -- bench/grasp_misses.py: where a policy closes the hand, against the expert --------------------------------------
+# -- studies/assembling_kits_grasp/grasp_misses.py: where a policy closes the hand, against the expert ----------------
 def test_grasp_misses_reads_where_the_hand_closes():
     """The expert against itself closes the same way, clear of the obstacles, and the hand then holds the shape at
     about the width that direction needs; a policy that never closes the hand reads as such."""
-    from bench.grasp_misses import measure
+    from studies.assembling_kits_grasp.grasp_misses import measure
 
     (row,) = measure("expert", [1_000_000], None)
     assert row["policy"] == row["expert"]
@@ -196,7 +196,7 @@ def test_grasp_misses_reads_where_the_hand_closes():
 
 
 def test_grasp_misses_refuses_what_it_cannot_replay(tmp_path, capsys):
-    from bench.grasp_misses import main
+    from studies.assembling_kits_grasp.grasp_misses import main
 
     report = tmp_path / "report.json"
     report.write_text('{"task": "AssemblingKits-v1", "failure_categories": {"dropped": 1}, "per_episode": []}')

@@ -1,8 +1,9 @@
 """Where the Panda's open fingertips come down around an AssemblingKits shape, and how clear of obstacles they are.
 
 The expert chooses its grasp's closing direction by these clearances (planning/assembling_kits.py), and
-bench/grasp_misses.py measures a policy's grasps by them: a learned policy that misses the grasp has, in most
-episodes traced, closed along a direction whose fingertips come down on a seated shape (docs/learnability.md).
+studies/assembling_kits_grasp/grasp_misses.py measures a policy's grasps by them: a learned policy that misses the
+grasp has, in most episodes traced, closed along a direction whose fingertips come down on a seated shape
+(docs/studies/assembling-kits-grasp.md).
 """
 
 from __future__ import annotations

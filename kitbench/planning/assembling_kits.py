@@ -161,12 +161,13 @@ class AssemblingKitsPlannerConfig:
     # Whether the grasp closes across the shape's narrowest width (`ShapeGeometry.grasp_angle`, up to the shape's
     # symmetry) wherever the fingers come down that way as clear as `clear_first`: the shape's yaw in the hand is then
     # one value per shape in most episodes, so the turn to its slot is the slot's yaw less the hand's, which a policy
-    # reads from pixels and joints; closing any way, it has to read the shape's own yaw (docs/learnability.md, "One
-    # grip per shape").
+    # reads from pixels and joints; closing any way, it has to read the shape's own yaw
+    # (docs/studies/assembling-kits-pixels-turn.md, "One grip per shape").
     prefer_narrowest: bool = False
     # Whether the carry goes over the slot unturned and the shape is turned there, in place, at `turn_speed` (a
     # fraction of the joint limits): the turn is then made where the cameras see the held shape beside its slot, one
-    # relation in the picture rather than two yaws read apart (docs/learnability.md, "Turning the shape over its slot").
+    # relation in the picture rather than two yaws read apart
+    # (docs/studies/assembling-kits-pixels-turn.md, "Turning the shape over its slot").
     turn_over_slot: bool = False
     turn_speed: float = 0.5
 

@@ -54,7 +54,7 @@ class PlannerConfig:
     grasp_tilt: float = 0.0  # fingertips tilted forward (towards the peg's far end), rad
     grasp_offset: float = 0.0  # TCP along the peg's axis from its centre, m (negative: towards the robot)
     # each episode's grasp_offset is drawn uniformly within this of it, m: demonstrations that hold the peg anywhere
-    # along it, as a learned grasp does, and set it down by where it is held (docs/learnability.md)
+    # along it, as a learned grasp does, and set it down by where it is held (docs/studies/set-down.md)
     grasp_offset_spread: float = 0.0
     grasp_height: float = 0.0  # TCP above the peg's axis, m
     descend_height: float = 0.05  # the approach ends with a vertical descent from this high above the grasp, m
@@ -64,7 +64,7 @@ class PlannerConfig:
     swing_lift: float = 0.01  # extra clearance of the peg's low end mid-swing, m
     set_down_clearance: float = 0.002  # peg bottom above the table at the end of the swing, m
     # each episode's set_down_clearance is drawn uniformly within this of it, m: the set-down's length varies, so
-    # only the table ends it, as a learned swing that ends too high needs (docs/learnability.md)
+    # only the table ends it, as a learned swing that ends too high needs (docs/studies/set-down.md)
     set_down_clearance_spread: float = 0.0
     speed_factor: float = 1.0  # fraction of the Panda's joint velocity and acceleration limits plans may use
     drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag

@@ -40,7 +40,7 @@ class PlannerConfig:
     # TCP along the peg's axis from its centre towards its outer end, fraction of the half-length
     grasp_offset: float = 0.3
     # each episode's grasp_offset is drawn uniformly within this of it (same unit): demonstrations that hold the peg
-    # anywhere along it, as a learned grasp does, and set it down by where it is held (docs/learnability.md)
+    # anywhere along it, as a learned grasp does, and set it down by where it is held (docs/studies/set-down.md)
     grasp_offset_spread: float = 0.0
     # the fixed jaw comes down this far beside the peg, not touching it: the closing jaw pushes the peg across onto
     # it, so a hand a few millimetres off (a learned policy's) still grasps instead of landing on the peg
@@ -53,7 +53,7 @@ class PlannerConfig:
     swing_lift: float = 0.01  # extra clearance of the peg's low end mid-swing, m
     set_down_clearance: float = 0.002  # peg bottom above the table at the end of the swing, m
     # each episode's set_down_clearance is drawn uniformly within this of it, m: the set-down's length varies, so
-    # only the table ends it, as a learned swing that ends too high needs (docs/learnability.md)
+    # only the table ends it, as a learned swing that ends too high needs (docs/studies/set-down.md)
     set_down_clearance_spread: float = 0.0
     speed_factor: float = 0.5  # fraction of the servos' no-load speed and acceleration plans may use
     drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag

@@ -85,7 +85,8 @@ def camera_notes(features: dict) -> list[str]:
 # MEAN_STD normalisation divides by that spread: on Fetch's LiftPegUpright data (head, torso and base held, std
 # 7e-6 to 2.6e-4) a trained ACT saw those entries at up to 5,464 standard deviations once it drove the robot
 # itself, and scored 8%; with the state left unnormalised, the same data, config and steps scored 80%
-# (docs/learnability.md). A constant is harmless until anything (the `obs_noise` perturbation, a sensor) moves it.
+# (docs/studies/lift-peg-fetch.md). A constant is harmless until anything (the `obs_noise` perturbation, a sensor)
+# moves it.
 STILL_STD = 1e-3
 
 # The state vectors the card checks, with the lerobot feature type that a config's normalization_mapping names.

@@ -111,7 +111,8 @@ class AssemblingKitsEnv(TabletopEnv):
     supported_robots = ("panda_wristcam", "so101")
     max_dense_reward = MAX_DENSE_REWARD
     default_qpos_noise = 0.02
-    # What the expert's motion depends on, each in a form a policy can learn from (measured: docs/learnability.md).
+    # What the expert's motion depends on, each in a form a policy can learn from
+    # (measured: docs/studies/assembling-kits-state.md).
     environment_state_keys = (
         "obj_pose",
         "obj_yaw_sym",  # folded by the shape's symmetry, as the grasp and the insertion are

@@ -1,7 +1,8 @@
 """Where a LiftPegUpright policy holds the peg, and how upright the peg is when the hand lets it go, seed by seed.
 
-    python bench/peg_release.py --policy lerobot:<checkpoint> --seeds 1000000:1000020 [--out rows.json]
-    python bench/peg_release.py --policy expert --robot so101 --seeds 1000000:1000020 [--policy-option K=V ...]
+    python studies/set_down/peg_release.py --policy lerobot:<checkpoint> --seeds 1000000:1000020 [--out rows.json]
+    python studies/set_down/peg_release.py --policy expert --robot so101 --seeds 1000000:1000020 \
+        [--policy-option K=V ...]
 
 For each seed the policy plays the episode to its end (the task ends it at the first success). It prints where the
 hand closed along the peg (the TCP's distance from the peg's centre along its axis, mm, three steps after the
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 

@@ -1,7 +1,9 @@
 """Where a policy closes the hand in AssemblingKits, against where the expert does, seed by seed.
 
-    python bench/grasp_misses.py --policy lerobot:<run>/act/train --report <run>/act/eval/report.json
-    python bench/grasp_misses.py --policy lerobot:<checkpoint> --seeds 1000000,1000009 [--out misses.json]
+    python studies/assembling_kits_grasp/grasp_misses.py --policy lerobot:<run>/act/train \
+        --report <run>/act/eval/report.json
+    python studies/assembling_kits_grasp/grasp_misses.py --policy lerobot:<checkpoint> --seeds 1000000,1000009 \
+        [--out misses.json]
 
 For each seed (with `--report`: the seeds of a `kitbench eval` report that ended in `--failure`, never_grasped by
 default) the policy plays the episode until it first commands the gripper closed, and so does the expert. At that

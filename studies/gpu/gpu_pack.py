@@ -1,11 +1,11 @@
 """Recordings made on the CPU, split into folders the lent GPU machine can be sent one command at a time.
 
-    python bench/gpu_pack.py ak=outputs/datasets/ak_video diffusion=outputs/datasets/lpu_video [--mib 56]
+    python studies/gpu/gpu_pack.py ak=outputs/datasets/ak_video diffusion=outputs/datasets/lpu_video [--mib 56]
 
-One command carries at most 64 MiB with the working tree (`../shared/gpu/README.md`), and a recording of 800
+One command carries at most 64 MiB with the working tree (`studies/gpu/README.md`), and a recording of 800
 AssemblingKits demonstrations is larger than that. Each recording's files are hard-linked into `.gpu/data1`,
 `.gpu/data2`, ... (largest first, into the first folder with room) under the name given, so that copying every
-folder into one place on the machine (`bench/gpu_learn.sh receive DIR`, in the command that carried it, copies it
+folder into one place on the machine (`studies/gpu/gpu_learn.sh receive DIR`, in the command that carried it, copies it
 into DIR/data) gives back each recording whole: `DIR/data/ak`, `DIR/data/diffusion`. `--check DIR` verifies such a
 merge against the manifest the packing wrote (every file, its size). Exit status 2 for a bad argument.
 """
@@ -19,7 +19,7 @@ import shutil
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MANIFEST = "gpu_pack.json"
 
 

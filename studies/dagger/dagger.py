@@ -1,5 +1,5 @@
-"""One round of DAgger against as many demonstrations: `python bench/dagger.py [--task T] [--demos D] [--rollouts R]
-[--steps S] [--suite-episodes E] [--out outputs/dagger]`.
+"""One round of DAgger against as many demonstrations: `python studies/dagger/dagger.py [--task T] [--demos D]
+[--rollouts R] [--steps S] [--suite-episodes E] [--out outputs/dagger]`.
 
 1. D expert demonstrations from the task's state recipe (`datasets/<task>_state.toml`), and a policy trained on them
    (`policies/act_<task>_state.json`, S steps): the weak checkpoint.
@@ -28,7 +28,7 @@ from kitbench.evaluation.suite import load_suite
 from kitbench.recording.recorder import RecordConfig, load_recipe, record
 from kitbench.registration import task_entry
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 ROLLOUT_SEED = 100_000  # the rollouts' seeds, clear of the demonstrations' (from 0) and of the suites' (1,000,000)
 

@@ -1,6 +1,7 @@
 """Can a policy's image encoder read, from an AssemblingKits recording's cameras, where the slot is?
 
-    python bench/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion] [--shifts 0.05,0]
+    python studies/assembling_kits_pixels/perception_probe.py DATASET [DATASET ...] [--encoders act,diffusion]
+        [--shifts 0.05,0]
         [--steps 2000] [--batch 32] [--lr 3e-4] [--checkpoints 500,1000,2000] [--eval-frames 1000] [--out report.json]
         [--targets goal,yaw,shape,turn,shape_yaw,grip[,hand]] [--with-state] [--hold-out episodes|kits]
         [--train-episodes N]
@@ -67,7 +68,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 

@@ -1,10 +1,10 @@
-"""bench/peg_release.py: where a LiftPegUpright policy holds the peg and how it lets it go, seed by seed."""
+"""studies/set_down/peg_release.py: where a LiftPegUpright policy holds the peg and how it lets it go, seed by seed."""
 
 from __future__ import annotations
 
 import pytest
 
-from bench.peg_release import main, measure, play
+from studies.set_down.peg_release import main, measure, play
 
 
 def test_the_so101_expert_holds_the_peg_where_its_config_says_and_stands_it_up_held():

@@ -1,6 +1,6 @@
-"""The image configs on a GPU, in one command per plan: `python bench/gpu_run.py --plan loader|learn [options]`.
+"""The image configs on a GPU, in one command per plan: `python studies/gpu/gpu_run.py --plan loader|learn [options]`.
 
-Written for the lent GPU machine (one H100 or H200, 16 cores; `../shared/gpu/README.md` says how kitbench is installed
+Written for the lent GPU machine (one H100 or H200, 16 cores; `studies/gpu/README.md` says how kitbench is installed
 there), where every minute counts: each plan records, trains and scores with the project's own commands, samples
 the GPU's utilisation (`nvidia-smi`) while it trains, writes what it measured to `<out>/<plan>.json` after every
 step (a killed run keeps its figures), and skips what an earlier run of the same plan already finished.
@@ -45,7 +45,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 LOADER_CONFIGS = ("act_lift_peg_upright_rgb", "act_assembling_kits_rgb", "diffusion_lift_peg_upright_rgb")
 LOG_LINE = re.compile(r"step:(\S+) .*?updt_s:([\d.]+) data_s:([\d.]+)")
@@ -235,7 +235,7 @@ def plan_learn(args, out: Path, logs: Path, results: dict) -> None:
     steps = 2 if args.tiny else args.steps
     recipe = recipe_of(config)
     data = out / "data" / f"{recipe.stem}-{demos}"
-    if args.data is not None:  # recorded beforehand (bench/gpu_pack.py carries it): the machine only trains
+    if args.data is not None:  # recorded beforehand (studies/gpu/gpu_pack.py carries it): the machine only trains
         data = args.data
         demos = recording_for(config, data)
     key = f"{config}/d{demos}/s{steps or 'shipped'}" + (f"/{args.tag}" if args.tag else "")
