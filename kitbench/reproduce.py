@@ -61,6 +61,8 @@ class ReproduceConfig:
     workers: int = setting(1, check=positive_int)
     # A published-figures file.
     published: Path = setting(PUBLISHED, show_default=False)
+    # Keep a checkpoint every N training steps as well as the last (lerobot-train --save_freq), for `kitbench select`.
+    save_every: int | None = setting(None, check=optional(positive_int))
     # Replace a finished training of another request (steps, seed, threads, data) in --out.
     overwrite: bool = setting(False)
 
@@ -119,7 +121,8 @@ def plan(config: ReproduceConfig) -> Run:
     recipe = recipe.replace(resume=data.exists(), mcap=False)
     threads = run.train_threads(config_path, entry.threads)
     data_stamp = json.dumps(recipe.info().to_json(), sort_keys=True) + f"|{demos}"
-    training = run.Training(config_path, data, policy_dir, threads, config.steps, seed, data_stamp=data_stamp)
+    extra = () if config.save_every is None else (f"--save_freq={config.save_every}",)
+    training = run.Training(config_path, data, policy_dir, threads, config.steps, seed, extra, data_stamp)
     run.check_replace(training, config.overwrite)  # before the recording: a refusal costs nothing
     return Run(config, entry, config_path, demos, seed, recipe, training)
 

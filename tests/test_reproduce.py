@@ -247,3 +247,15 @@ def test_an_unpublished_config_trains_on_the_threads_its_kind_was_measured_faste
     assert run.train_threads(policies / "act_lift_peg_upright_state.json", published_threads=3) == "3"
     monkeypatch.setenv("OMP_NUM_THREADS", "4")
     assert run.train_threads(policies / "act_lift_peg_upright_rgb_96_cpu.json", published_threads=2) == "4"
+
+
+def test_save_every_keeps_checkpoints_along_the_training_and_is_part_of_its_request(tmp_path):
+    from kitbench.reproduce import ReproduceConfig, plan
+
+    planned = plan(ReproduceConfig(CONFIG, out=tmp_path / "run", steps=20, save_every=5))
+    command = planned.training.request()["command"]
+    assert "--save_freq=5" in command and "--steps=20" in command
+    assert (
+        "--save_freq=5"
+        not in plan(ReproduceConfig(CONFIG, out=tmp_path / "run", steps=20)).training.request()["command"]
+    )
