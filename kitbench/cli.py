@@ -113,6 +113,12 @@ def _select(flags: dict) -> int:
     return run_select(flags)
 
 
+def _sweep(flags: dict) -> int:
+    from kitbench.evaluation.sweep import run_sweep
+
+    return run_sweep(flags)
+
+
 def _reproduce(flags: dict) -> int:
     from kitbench.config.declare import build
     from kitbench.reproduce import ReproduceConfig, reproduce
@@ -197,6 +203,12 @@ COMMANDS = {
         _select,
         (("kitbench.evaluation.select:SelectSettings", None),),
         skip=("seed", "policy", "save_dataset"),
+    ),
+    "sweep": Command(
+        "score a policy over a grid of execution settings (n_action_steps, ensembling, action delay) on one suite",
+        _sweep,
+        (("kitbench.evaluation.sweep:SweepSettings", None),),
+        skip=("seed", "save_dataset"),
     ),
 }
 
