@@ -212,8 +212,8 @@ def run_select(flags: dict[str, Any], progress: bool = True) -> int:
     suite = load_suite(flags["suite_file"])
     check_validation_suite(suite)
     found = checkpoints(settings.choice)
-    run = settings.choice.train_dir or found[max(found)]
-    out = Path(settings.output.out or Path("outputs/select") / slug(Path(run).resolve().name))
+    run = Path(settings.choice.train_dir or found[max(found)]).resolve()
+    out = Path(settings.output.out or Path("outputs/select") / slug(f"{run.parent.name}_{run.name}"))
     check_folder(out, settings.output.overwrite, settings.output.resume, "checkpoint selection")
     shared = eval_flags(flags, SelectSettings)
     cells = [Cell(_name(s), cell_config(shared, out, _name(s), f"lerobot:{p}")) for s, p in found.items()]

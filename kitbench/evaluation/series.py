@@ -78,6 +78,8 @@ def _finished_differences(report: dict, config: EvalConfig) -> list[str]:
     found = []
     if report.get("policy") != config.policy.policy:
         found.append(f"policy: report {report.get('policy')!r}, now {config.policy.policy!r}")
+    if report["suite"]["name"] != config.suite.name:
+        found.append(f"suite: report {report['suite']['name']!r}, now {config.suite.name!r}")
     if list(report["suite"]["seeds"]) != list(config.suite.seeds):
         found.append(f"seeds: report {len(report['suite']['seeds'])}, now {len(config.suite.seeds)}")
     provenance = report.get("provenance") or {}

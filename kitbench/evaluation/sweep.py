@@ -2,8 +2,8 @@
 
 `--grid KEY=V1,V2,...` (repeatable) gives a setting and its values; the grid is every combination, in the order
 given. A key is `action_delay` (inference latency in control steps, `kitbench eval --action-delay`),
-`temporal_ensemble` (on: `temporal_ensemble_coeff` = `ENSEMBLE_ON`, ACT's documented value; off: none), or any
-`--policy-option` key of the policy (`n_action_steps`, `num_inference_steps`, `temporal_ensemble_coeff`, ...).
+`temporal_ensemble` (on: `temporal_ensemble_coeff` = `ENSEMBLE_ON`, the original ACT work's; off: none), or
+any `--policy-option` key of the policy (`n_action_steps`, `num_inference_steps`, `temporal_ensemble_coeff`, ...).
 
 Each cell is an ordinary `kitbench eval` report in `<out>/<cell>/` (resumable; its provenance's `execution` holds
 the settings in force), then `sweep.json`, `sweep.md` and `sweep.png` tabulate and plot success with its Wilson
@@ -41,7 +41,7 @@ from kitbench.policies.ensemble import ENSEMBLE_OPTION
 
 SUMMARY = "sweep"
 ENSEMBLE = "temporal_ensemble"
-ENSEMBLE_ON = 0.01  # ACT's coefficient in its paper and lerobot's docs
+ENSEMBLE_ON = 0.01  # the original ACT work's coefficient, as lerobot's ACT config notes
 SWITCH = {"on": True, "off": False, True: True, False: False}
 SHOWN = ("n_action_steps", ENSEMBLE_OPTION, "num_inference_steps", DELAY)  # execution settings the table reads back
 
@@ -89,8 +89,11 @@ def _check_axes(grid: tuple[tuple[str, tuple], ...], fixed: dict) -> None:
     if repeated:
         raise KitbenchError(f"--grid {repeated[0]} is given twice; give its values once, comma-separated")
     for key in keys:
-        if key in fixed or (key == ENSEMBLE and ENSEMBLE_OPTION in {*fixed, *keys}):
-            raise KitbenchError(f"--grid {key} and a --policy-option (or --grid) set the same setting; drop one")
+        twin = ENSEMBLE_OPTION if key == ENSEMBLE and ENSEMBLE_OPTION in {*fixed, *keys} else key
+        if twin != key or key in fixed:
+            given = "--action-delay" if key == DELAY else f"--policy-option {twin}"
+            given = f"--grid {twin}" if twin != key and twin in keys else given
+            raise KitbenchError(f"--grid {key} and {given} set the same setting; drop one")
     for key, values in grid:
         for v in values:
             if key == ENSEMBLE and v not in SWITCH:
