@@ -107,6 +107,18 @@ def _compare(flags: dict) -> int:
     return 1 if flags.get("fail_if_worse") and comparison.verdict == "worse" else 0
 
 
+def _select(flags: dict) -> int:
+    from kitbench.evaluation.select import run_select
+
+    return run_select(flags)
+
+
+def _sweep(flags: dict) -> int:
+    from kitbench.evaluation.sweep import run_sweep
+
+    return run_sweep(flags)
+
+
 def _reproduce(flags: dict) -> int:
     from kitbench.config.declare import build
     from kitbench.reproduce import ReproduceConfig, reproduce
@@ -185,6 +197,18 @@ COMMANDS = {
         "compare two eval reports of one suite: success difference with its 95%% CI and p-value, and a verdict",
         _compare,
         (("kitbench.evaluation.compare:CompareSettings", None),),
+    ),
+    "select": Command(
+        "score each checkpoint of a lerobot-train run on a validation suite: success against step, and the best",
+        _select,
+        (("kitbench.evaluation.select:SelectSettings", None),),
+        skip=("seed", "policy", "save_dataset"),
+    ),
+    "sweep": Command(
+        "score a policy over a grid of execution settings (n_action_steps, ensembling, action delay) on one suite",
+        _sweep,
+        (("kitbench.evaluation.sweep:SweepSettings", None),),
+        skip=("seed", "save_dataset"),
     ),
 }
 

@@ -37,3 +37,22 @@ def needs_vulkan():
         if os.environ.get("CI"):
             pytest.fail("CI must render: no Vulkan device (the Makefile installs one when root)")
         pytest.skip("no Vulkan device on this machine")
+
+
+@pytest.fixture(scope="session")
+def tiny_act_run(tmp_path_factory):
+    """A lerobot-train output folder of a small state ACT (`tests.lerobot_cli.small_config`: chunk_size 5) trained
+    2 steps on 2 recorded LiftPegUpright-v1 episodes, a checkpoint saved at each step (`checkpoints/000001`,
+    `checkpoints/000002`): for the commands that score several checkpoints or settings. About 25 s, once."""
+    import json
+
+    from kitbench.recording.recorder import RecordConfig, record
+    from tests.lerobot_cli import lerobot_train, small_config
+
+    base = tmp_path_factory.mktemp("tiny_act_run")
+    data = base / "data"
+    record(RecordConfig.of("LiftPegUpright-v1", 2, data, mcap=False), progress=False)
+    info = json.loads((data / "meta/info.json").read_text())["features"]
+    inputs = [n for n in info if n.startswith("observation.")]
+    lerobot_train(small_config(data, base, inputs, "act", steps=2), data, base / "train", base, "--save_freq=1")
+    return base / "train"

@@ -13,6 +13,7 @@ from kitbench.config.declare import setting
 from kitbench.engine.config import ExecutorConfig
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.suite import DEFAULT_FIRST_SEED, Suite, adhoc_suite, load_suite
+from kitbench.perturbations import PERTURBATIONS
 from kitbench.policies.lerobot_policy import DEVICES, parse_option
 from kitbench.registration import canonical_task
 
@@ -29,6 +30,15 @@ class Selection:
     seed: int | None = setting(None, check=optional(seed))
 
 
+DELAY = "action_delay"  # the perturbation that runs an inference latency
+
+
+def _delay(name: str, value: object) -> None:
+    most = int(PERTURBATIONS[DELAY].maximum)
+    if not (isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= most):
+        raise KitbenchError(f"{name} must be a whole number of control steps from 0 to {most}, got {value!r}")
+
+
 @dataclass
 class ScoredPolicy:
     # Who is scored: expert, random, zero, replay:<dataset>[:episode] or lerobot:<checkpoint>.
@@ -42,6 +52,9 @@ class ScoredPolicy:
     device: str = setting("auto", check=one_of(DEVICES))
     # Episodes each worker runs in lockstep, one policy call a step for all of them.
     batch_size: int = setting(1, check=positive_int)
+    # Inference latency in control steps: each action is executed this many steps after the observation it was
+    # computed from (the action_delay perturbation on every episode; the robot holds its first targets meanwhile).
+    action_delay: int = setting(0, check=_delay)
 
 
 @dataclass
@@ -97,6 +110,15 @@ class EvalConfig:
         declare.validate(self.policy)
         declare.validate(self.output)
         self.executor.validate()
+        delay = self.policy.action_delay
+        if delay and any(name == DELAY for name, _ in self.suite.perturbations):
+            raise KitbenchError(
+                f"--action-delay {delay} and suite {self.suite.name}'s action_delay perturbation set the same latency; "
+                "drop one"
+            )
+        if delay and self.output.save_dataset is not None:
+            # a frame's action would be one the robot executed `delay` steps later: not a demonstration
+            raise KitbenchError(f"--save-dataset stores each frame's executed action; drop --action-delay {delay}")
 
 
 ENV_FLAGS = ("obs_mode", "control_mode", "reward_mode", "robot")

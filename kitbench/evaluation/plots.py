@@ -127,3 +127,32 @@ def _save(plt, fig, path: Path) -> Path:
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def success_against(xs: list, rates: list[dict], path: Path, xlabel: str, title: str, best: int | None = None) -> Path:
+    """Success with its 95% interval at each x: training steps (numbers, joined by a line, for `kitbench select`)
+    or settings (labels, for `kitbench sweep`); `best`: the index of the point drawn as the best."""
+    numeric = all(isinstance(x, int | float) for x in xs)
+    plt, fig, ax = _figure(max(6.0, 0.45 * len(xs)) if not numeric else 6.0, 3.8)
+    at = list(xs) if numeric else list(range(len(xs)))
+    ax.errorbar(
+        at, [r["rate"] for r in rates], yerr=error_bars(rates), marker="o", capsize=3, color="#4c72b0",
+        linestyle="-" if numeric else "none",
+    )  # fmt: skip
+    if best is not None:
+        ax.plot([at[best]], [rates[best]["rate"]], marker="*", markersize=16, color="#dd8452", label="best")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    if not numeric:
+        ax.set_xticks(
+            at, [str(x) for x in xs], rotation=45 if len(xs) > 3 else 0, ha="right" if len(xs) > 3 else "center"
+        )
+    if numeric:
+        from matplotlib.ticker import MaxNLocator
+
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_ylim(-0.03, 1.05)  # a point at 0% stays visible
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("success (95% Wilson CI)")
+    ax.set_title(title, fontsize=9)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return _save(plt, fig, path)

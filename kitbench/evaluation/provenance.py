@@ -6,7 +6,7 @@ suite, the software, the machine and the command.
   on (repo id, root, episode count and kitbench's episodes digest when the root is a kitbench recording).
 - `execution`: the settings in force once the checkpoint's config and every `--policy-option` are applied, read
   from the loaded policy (policy type, chunk size, action steps, ensembling, inference steps, observation steps,
-  device, dtype), the batch size and the options themselves.
+  device, dtype), the batch size, the inference latency (`action_delay`, control steps) and the options themselves.
 - `suite`: a digest of what decides the numbers (`Suite.to_dict()` less its name, description and file) and the
   env settings the episodes ran in (the arguments of `make_env`, the control and simulation rates).
 - `software`: versions of Python and the packages that decide an episode; `vulkan`: the render device and the
@@ -61,7 +61,7 @@ def checkpoint_files(folder: Path) -> dict[str, str]:
     return {p.name: sha256_file(p) for p in sorted(folder.iterdir()) if p.is_file()}
 
 
-def _training_step(folder: Path) -> int | None:
+def training_step(folder: Path) -> int | None:
     """The training step a `lerobot-train` checkpoint was saved at: its `training_state/training_step.json`, else
     its folder's name (`checkpoints/<step>/pretrained_model`)."""
     step_file = folder.parent / "training_state" / "training_step.json"
@@ -107,14 +107,15 @@ def checkpoint(policy) -> dict | None:
         "path": str(folder.resolve()),
         "sha256": together.hexdigest(),
         "files": files,
-        "training_step": _training_step(folder),
+        "training_step": training_step(folder),
         "dataset": _dataset(folder),
     }
 
 
-def execution(policy, spec: str, device: str, batch_size: int, options: dict) -> dict:
+def execution(policy, spec: str, device: str, batch_size: int, options: dict, action_delay: int = 0) -> dict:
     """The settings the policy runs with, read from it: a checkpoint's config once the options are applied (and
-    the inference steps its model actually takes), the device and dtype its network runs in."""
+    the inference steps its model actually takes), the device and dtype its network runs in, and the control steps
+    between an observation and the execution of the action computed from it (`action_delay`)."""
     out: dict[str, Any] = {"policy_type": spec.partition(":")[0], "batch_size": batch_size}
     config = getattr(policy, "config", None)
     network = getattr(policy, "policy", None)
@@ -132,6 +133,7 @@ def execution(policy, spec: str, device: str, batch_size: int, options: dict) ->
     parameter = next(iter(parameters()), None) if callable(parameters) else None
     out["device"] = device if parameter is not None else None
     out["dtype"] = str(parameter.dtype).removeprefix("torch.") if parameter is not None else None
+    out["action_delay"] = action_delay
     out["policy_options"] = dict(options)
     return out
 
@@ -227,14 +229,22 @@ def command_line() -> str:
 
 
 def provenance(
-    spec: str, policy, suite: Suite, env: dict, device: str, batch_size: int, options: dict, renders: bool
+    spec: str,
+    policy,
+    suite: Suite,
+    env: dict,
+    device: str,
+    batch_size: int,
+    options: dict,
+    renders: bool,
+    action_delay: int = 0,
 ) -> dict:
     """The report's provenance (see the module docstring); `env`: the env settings the episodes run in, `renders`:
-    whether the episodes are scored from camera images."""
+    whether the episodes are scored from camera images, `action_delay`: the inference latency run (`execution`)."""
     uses_network = callable(getattr(getattr(policy, "policy", None), "parameters", None))
     found = {
         "policy": {"spec": spec, "checkpoint": checkpoint(policy)},
-        "execution": execution(policy, spec, device, batch_size, options),
+        "execution": execution(policy, spec, device, batch_size, options, action_delay),
         "suite": {"digest": suite_digest(suite), "env": env},
         "software": versions(),
         "vulkan": vulkan() if renders else None,

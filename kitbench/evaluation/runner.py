@@ -189,7 +189,8 @@ def validate(config: EvalConfig) -> Plan:
     started = time.monotonic()
     renders = suite.obs_mode in IMAGE_OBS_MODES
     batch_size = config.policy.batch_size
-    found = provenance(config.policy.policy, policy, suite, env_settings, device, batch_size, options, renders)
+    delay = config.policy.action_delay
+    found = provenance(config.policy.policy, policy, suite, env_settings, device, batch_size, options, renders, delay)
     plan = Plan(suite, timestep, fps, device, found, _resume_settings(config, suite, found))
     plan.provenance_seconds = time.monotonic() - started
     if stored is not None:
@@ -275,7 +276,8 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     journal = EvalJournal(out)
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
     options = dict(config.policy.policy_options)
-    with RolloutEngine(executor, EvalWork(suite, config.policy.policy, device, options)) as engine:
+    work = EvalWork(suite, config.policy.policy, device, options, config.policy.action_delay)
+    with RolloutEngine(executor, work) as engine:
         if plan.resume:
             journal.open(len(plan.journaled))
         else:

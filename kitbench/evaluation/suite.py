@@ -10,6 +10,10 @@ many steps, so that what matters is whether the task is still done at the end (a
 upright). The report gives both of ManiSkill's metrics, `success_once` and `success_at_end`; its headline is
 `success_at_end` when `settle_steps` > 0, else `success_once` (with no settling the two are equal).
 
+`purpose` (default `test`): what the seeds are for. Figures are scored on `test` suites; a `validation` suite's
+seeds are for choosing (a checkpoint, an execution setting) and must share none with any shipped test suite
+(`kitbench select` checks, and refuses a test suite).
+
 `[suite.perturbations]` (a robustness suite): `name = [level, ...]`, each a `kitbench.perturbations` entry. The
 suite's seeds run once nominal and once under each perturbation at each level, one at a time.
 """
@@ -21,7 +25,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from kitbench.config import declare
-from kitbench.config.checks import is_seed
+from kitbench.config.checks import is_seed, one_of
 from kitbench.config.declare import setting
 from kitbench.config.files import read_settings
 from kitbench.engine.config import ExecutorConfig
@@ -35,6 +39,7 @@ from kitbench.rollout import SettleSettings
 OBS_MODES_EVALUABLE = OBS_MODES
 SUITE_TABLE = "suite"
 DEFAULT_FIRST_SEED = 1_000_000
+PURPOSES = ("test", "validation")
 
 
 @dataclass(eq=True)
@@ -47,6 +52,8 @@ class Suite(EnvSettings, SettleSettings):
     seeds: tuple[int, ...] = setting((), cli=False)
     # What the suite is for.
     description: str = setting("", cli=False)
+    # What its seeds are for: test (figures are scored on them) or validation (choosing a checkpoint or a setting).
+    purpose: str = setting("test", cli=False, check=one_of(PURPOSES))
     # Robustness perturbations: name = [level, ...] (kitbench.perturbations); each level one run of every seed.
     perturbations: tuple[tuple[str, tuple[float, ...]], ...] = setting((), cli=False)
     # The file it came from.

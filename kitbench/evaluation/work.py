@@ -60,26 +60,35 @@ def suite_env_settings(suite: Suite) -> dict:
     }
 
 
-def make_suite_env(suite: Suite, render: bool = False, perturbation: tuple[str, float] | None = None):
+def make_suite_env(
+    suite: Suite, render: bool = False, perturbation: tuple[str, float] | None = None, action_delay: int = 0
+):
+    """`action_delay`: the policy's inference latency in control steps, the `action_delay` perturbation on every
+    episode (a robustness suite's conditions are added to it)."""
     from kitbench.registration import make_env
 
     settings = suite_env_settings(suite)
+    perturbations: dict[str, float] = {"action_delay": action_delay} if action_delay else {}
+    perturbations.update([perturbation] if perturbation is not None else [])
     return make_env(
         settings.pop("task"),
         **settings,
         render_mode="rgb_array" if render else None,
-        perturbations=None if perturbation is None else dict([perturbation]),
+        perturbations=perturbations or None,
     )
 
 
 class EvalWork(Work):
-    def __init__(self, suite: Suite, policy: str, device: str = "cpu", options: dict | None = None):
+    def __init__(
+        self, suite: Suite, policy: str, device: str = "cpu", options: dict | None = None, action_delay: int = 0
+    ):
         """`device`: where a trained policy's network runs (resolved: cpu or cuda); `options`: its config's
-        settings for this run."""
+        settings for this run; `action_delay`: its inference latency in control steps (`make_suite_env`)."""
         self.suite = suite
         self.policy_spec = policy
         self.device = device
         self.options = dict(options or {})
+        self.action_delay = action_delay
         self._env: Any = None
         self._video_env: Any = None
         self._perturbed_envs: dict[tuple[str, float], Any] = {}
@@ -89,15 +98,26 @@ class EvalWork(Work):
 
     def __getstate__(self) -> dict:
         # the settings travel, never a built env
-        return {"suite": self.suite, "policy": self.policy_spec, "device": self.device, "options": self.options}
+        return {
+            "suite": self.suite,
+            "policy": self.policy_spec,
+            "device": self.device,
+            "options": self.options,
+            "action_delay": self.action_delay,
+        }
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__(state["suite"], state["policy"], state["device"], state["options"])  # type: ignore[misc]
+        self.__init__(  # type: ignore[misc]
+            state["suite"], state["policy"], state["device"], state["options"], state["action_delay"]
+        )
+
+    def _env_for(self, render: bool = False, perturbation: tuple[str, float] | None = None):
+        return make_suite_env(self.suite, render, perturbation, self.action_delay)
 
     def setup(self) -> None:
         from kitbench.policies.registry import make_policy
 
-        self._env = make_suite_env(self.suite)
+        self._env = self._env_for()
         self._policy = make_policy(self.policy_spec, self.device, self.options)
 
     def run(self, job: int | Trial | Batch | Film) -> EpisodeResult | list[EpisodeResult] | tuple[EpisodeResult, bytes]:
@@ -113,7 +133,7 @@ class EvalWork(Work):
             condition = (job.perturbation, job.level)
             env = self._perturbed_envs.get(condition)
             if env is None:
-                env = self._perturbed_envs[condition] = make_suite_env(self.suite, perturbation=condition)
+                env = self._perturbed_envs[condition] = self._env_for(perturbation=condition)
             return evaluate_episode(env, self._policy, job.seed, settle_steps=self.suite.settle_steps)
         return evaluate_episode(self._env, self._policy, job, settle_steps=self.suite.settle_steps)
 
@@ -134,7 +154,7 @@ class EvalWork(Work):
 
         envs = self._batch_envs.setdefault(job.condition, [])
         while len(envs) < len(job.seeds):
-            envs.append(make_suite_env(self.suite, perturbation=job.condition))
+            envs.append(self._env_for(perturbation=job.condition))
         if self._batched is None:
             self._batched = batched(self._policy, lambda: make_policy(self.policy_spec, self.device, self.options))
         return evaluate_batch(envs, self._batched, list(job.seeds), self.suite.settle_steps)
@@ -143,7 +163,7 @@ class EvalWork(Work):
         from kitbench.evaluation.video import write_mp4
 
         if self._video_env is None:  # built on the first video: most evaluations film nothing
-            self._video_env = make_suite_env(self.suite, render=True)
+            self._video_env = self._env_for(render=True)
         frames: list = []
         result = evaluate_episode(self._video_env, self._policy, job.seed, frames, self.suite.settle_steps)
         with tempfile.TemporaryDirectory(prefix="kitbench-video-") as scratch:
