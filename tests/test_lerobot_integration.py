@@ -138,7 +138,7 @@ def test_open_loop_bench_compares_the_checkpoint_with_the_expert_on_the_experts_
     """bench/open_loop.py: every step of the expert's episode is one comparison, filed under the phase the expert
     played, and the expert's episode is the one it plays without the probe (same length)."""
     from bench.open_loop import measure, summarize
-    from kitbench.planning.lift_peg_upright import LiftPegUprightPlanner
+    from kitbench.planning.lift_peg_upright_panda import LiftPegUprightPlanner
     from kitbench.policies.expert import ExpertPolicy
     from kitbench.recording.rollout import run_episode
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import kitbench  # noqa: F401  (registers the tasks)
-from kitbench.planning.lift_peg_upright import LiftPegUprightPlanner
+from kitbench.planning.lift_peg_upright_panda import LiftPegUprightPlanner
 from kitbench.planning.phases import PhaseSequencer, Step
 from kitbench.planning.poses import (
     interpolate_pose,

@@ -1,16 +1,20 @@
 """Sharded recording (`--shard-episodes`): workers write whole shards, merged at the end into the dataset one
 writer makes of the same seeds, on a local pool and on Ray; a sharded recording resumes and extends; bad
-settings are refused."""
+settings are refused; a run ended by a lost cluster or a signal keeps its journal and says so."""
 
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 
+from kitbench.engine.executor import ClusterLost
 from kitbench.errors import KitbenchError
-from kitbench.recording.journal import journal_root
+from kitbench.recording.journal import EpisodeJournal, journal_root
 from kitbench.recording.recorder import RecordConfig, record
+from kitbench.recording.shards import ShardedRecording
+from kitbench.recording.stops import Stopped
 from tests.test_merge import _assert_same_recording, _frames
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -89,3 +93,33 @@ def test_sigterm_stops_a_sharded_pool_recording_promptly_and_resume_finishes(tmp
     subprocess.run([*command, "--resume"], check=True, capture_output=True, timeout=300)
     seeds = [json.loads(line)["seed"] for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
     assert seeds == list(range(12))
+
+
+class _EndsEarly:
+    """An engine whose first shard never comes back: the cluster goes, or a signal arrives, while it runs."""
+
+    def __init__(self, error: BaseException):
+        self.error = error
+
+    def results(self, jobs, needed):
+        next(iter(jobs))  # the first shard handed out
+        raise self.error
+        yield  # a generator, as the engine's results are
+
+
+@pytest.mark.parametrize(
+    "error", [ClusterLost("the Ray cluster at 127.0.0.1:1 was lost"), Stopped(signal.SIGTERM)], ids=["lost", "SIGTERM"]
+)
+def test_a_sharded_run_ended_early_keeps_its_journal_and_says_resume(tmp_path, error):
+    config = RecordConfig.of(task=TASK, episodes=4, out=tmp_path / "lpu", shard_episodes=2)
+    run = ShardedRecording(config, EpisodeJournal(config.out), [], progress=False)
+    if isinstance(error, ClusterLost):
+        with pytest.raises(KitbenchError) as err:
+            run.run(_EndsEarly(error), signals=False)
+        assert str(err.value) == (
+            "the Ray cluster at 127.0.0.1:1 was lost; every shard finished before is kept: continue with --resume"
+        )
+    else:
+        summary = run.run(_EndsEarly(error), signals=False)
+        assert summary.interrupted and summary.exit_code == 128 + signal.SIGTERM and summary.stored == 0
+    assert journal_root(config.out).is_dir() and not config.out.exists()

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from kitbench.config.declare import setting
-from kitbench.errors import KitbenchError, check_choice
+from kitbench.errors import KitbenchError, check_choice, one_line
 from kitbench.evaluation.provenance import outcome_differences
 from kitbench.evaluation.report import REPORT_VERSION, group_table, write_json
 from kitbench.evaluation.significance import (
@@ -72,8 +72,7 @@ def load_report(path: str | Path) -> tuple[Path, dict]:
     try:
         report = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise _fail(path, f"cannot read it as JSON ({reason})") from None
+        raise _fail(path, f"cannot read it as JSON ({one_line(exc, typed=False)})") from None
     if not isinstance(report, dict):
         raise _fail(path, "not a JSON object")
     for key in ("report_version", "suite", "success", "criteria", "failure_categories"):

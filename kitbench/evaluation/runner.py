@@ -22,7 +22,7 @@ from kitbench.engine import RolloutEngine, make_executor
 from kitbench.engine.executor import ClusterLost
 from kitbench.env_settings import canonical_size
 from kitbench.envs.interface import as_kitbench
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, one_line
 from kitbench.evaluation.compare import _seeds_text
 from kitbench.evaluation.config import COMMAND_LINE, EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
@@ -572,8 +572,7 @@ def _video_error(exc: Exception) -> str:
     no_device = vulkan_error()
     if no_device is not None:
         return no_device
-    lines = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    return one_line(exc)
 
 
 def summary_lines(report: dict, out: Path) -> list[str]:

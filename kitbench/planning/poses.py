@@ -61,12 +61,13 @@ def cubic_bezier(p0, p1, p2, p3, s: float) -> np.ndarray:
     return u**3 * p0 + 3 * u * u * s * p1 + 3 * u * s * s * p2 + s**3 * p3
 
 
-def upright_correction(pose: np.ndarray, goal_height: float) -> np.ndarray:
+def upright_correction(pose: np.ndarray, goal_height: float, tilt: float | None = None) -> np.ndarray:
     """The world transform that stands a held object upright (its x axis vertical, turned about the horizontal
     axis of its tilt) with its centre at `goal_height`: applied to the hand holding it, it carries the object
-    there as it is held now."""
+    there as it is held now. `tilt`: the object's tilt as the caller measured it (else from its unit x axis)."""
     axis = pose[:3, 0] if pose[2, 0] >= 0 else -pose[:3, 0]
-    tilt = math.acos(min(1.0, abs(float(axis[2]))))
+    if tilt is None:
+        tilt = math.acos(min(1.0, abs(float(axis[2]))))
     rotvec = np.cross(axis, [0.0, 0.0, 1.0])
     rotvec *= tilt / max(float(np.linalg.norm(rotvec)), 1e-12)
     goal = make_pose(axis_angle_to_matrix(rotvec) @ pose[:3, :3], pose[:3, 3] + [0.0, 0.0, goal_height - pose[2, 3]])

@@ -25,7 +25,7 @@ from kitbench.envs.features import (
 )
 from kitbench.envs.interface import as_kitbench
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
-from kitbench.errors import KitbenchError, check_choice
+from kitbench.errors import KitbenchError, check_choice, one_line
 from kitbench.metadata import RecordingInfo
 from kitbench.policies.ensemble import ENSEMBLE_OPTION, EnsembledChunks
 from kitbench.policies.registry import policy_source
@@ -145,8 +145,9 @@ def apply_options(cfg, options: dict) -> None:
     try:
         cfg.__post_init__()
     except (ValueError, TypeError, NotImplementedError) as exc:
-        detail = " ".join(str(exc).split())
-        raise KitbenchError(f"policy options {options}: the {cfg.type} config refuses them: {detail}") from exc
+        raise KitbenchError(
+            f"policy options {options}: the {cfg.type} config refuses them: {one_line(exc, typed=False)}"
+        ) from exc
 
 
 class LeRobotPolicy:

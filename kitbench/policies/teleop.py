@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 
 from kitbench.envs.interface import KitbenchEnv, as_kitbench
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, one_line
 from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.policies.registry import policy_source
 from kitbench.rollout import Control, Hook
-from kitbench.teleop.devices import action_keys, label, make_config, make_device, reason
+from kitbench.teleop.devices import action_keys, label, make_config, make_device
 from kitbench.teleop.hooks import TeleopHook, say
 from kitbench.teleop.keys import EpisodeKeys
 from kitbench.teleop.mapping import JointMapping, Mapping, make_mapping
@@ -74,7 +74,7 @@ class TeleopPolicy:
         try:
             self.device.connect()
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is missing: one line)
-            raise KitbenchError(f"teleop:{self.device_label}: cannot connect: {reason(exc)}") from None
+            raise KitbenchError(f"teleop:{self.device_label}: cannot connect: {one_line(exc)}") from None
         if not self.device.is_connected:
             raise KitbenchError(
                 f"teleop:{self.device_label}: not connected after connecting (a keyboard needs pynput and an X11 "
@@ -140,7 +140,7 @@ class TeleopPolicy:
             if self.keys.stopping and self.last is not None:
                 return self._hold()  # escape also lets go of a keyboard device: the episode stops at this step
             raise KitbenchError(
-                f"teleop:{self.device_label} disconnected while recording seed {self.seed}: {reason(exc)}; the "
+                f"teleop:{self.device_label} disconnected while recording seed {self.seed}: {one_line(exc)}; the "
                 "episode in flight is discarded and every finished one kept: continue with --resume"
             ) from None
         self.last = self.mapping.action(self.env, device_action)
@@ -160,7 +160,7 @@ class TeleopPolicy:
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is gone: one line)
             raise KitbenchError(
                 f"teleop:{self.device_label} disconnected while waiting for the start pose of seed {self.seed}: "
-                f"{reason(exc)}; every finished episode is kept: continue with --resume"
+                f"{one_line(exc)}; every finished episode is kept: continue with --resume"
             ) from None
 
     def _align(self, env: KitbenchEnv, mapping: JointMapping) -> None:

@@ -6,7 +6,6 @@ does each shard of a sharded recording, in its worker."""
 from __future__ import annotations
 
 import itertools
-import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -15,14 +14,13 @@ from pathlib import Path
 
 from kitbench import faults
 from kitbench.engine import RolloutEngine, make_executor
-from kitbench.engine.executor import ClusterLost
-from kitbench.errors import KitbenchError
 from kitbench.metadata import EpisodeInfo, lerobot_info
 from kitbench.recording.config import RecordConfig, make_recording_env
 from kitbench.recording.rollout import EpisodeRecord
+from kitbench.recording.run import RecordingRun
 from kitbench.recording.session import RecordingSession, dataset_state
-from kitbench.recording.stops import Stopped, StopSignals
-from kitbench.recording.summary import Summary, attempt_limit, folder_size
+from kitbench.recording.stops import StopSignals
+from kitbench.recording.summary import Summary
 from kitbench.recording.work import RecordWork
 from kitbench.rollout import Control
 
@@ -75,55 +73,40 @@ def record_episodes(config: RecordConfig, progress: bool = True, signals: bool =
         session.start(overwrite=config.output.overwrite)
         faults.point("record.started")
         summary = Recording(config, session, committed, progress).run(engine, signals)
-    summary.seconds = time.monotonic() - started
-    summary.size_bytes = folder_size(config.out)
-    return summary
+    return summary.measured(started, config.out)
 
 
-class Recording:
+class Recording(RecordingRun):
     """One writer's recording: what the journal held first, then new episodes from the engine, each stored as it
-    arrives and committed periodically."""
+    arrives and committed periodically; a stop commits what is stored."""
 
     def __init__(self, config: RecordConfig, session: RecordingSession, committed: list[EpisodeInfo], progress: bool):
-        self.config, self.session, self.progress = config, session, progress
+        super().__init__(config, Summary(stored=len(committed)), progress)
+        self.session = session
         self.done_seeds = {e.seed for e in committed}
-        self.summary = Summary(stored=len(committed))
-        self.limit = attempt_limit(config)
 
-    def run(self, engine: RolloutEngine | None, signals: bool) -> Summary:
-        """`signals`: Ctrl-C, SIGTERM and SIGHUP commit what is stored and stop (off in a shard's worker, whose
-        signals are its pool's)."""
-        bar = None
-        try:
-            with StopSignals(enabled=signals) as stops:
-                replayed = self._republish(stops)
-                remaining = self.config.episodes - self.summary.stored
-                if remaining > 0 and engine is not None:
-                    if self.progress:
-                        from kitbench.progress import progress as progress_bar
-
-                        bar = progress_bar(remaining, f"record {self.config.task}")
-                    self._record_new(engine, stops, replayed, bar)
-                with stops.storing():
-                    self.session.commit()
-        except KeyboardInterrupt as exc:
-            self.session.commit()
-            self.summary.interrupted = True
-            self.summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT
-        except ClusterLost as exc:
-            self.session.abandon()
-            raise KitbenchError(f"{exc}; every episode finished before is kept: continue with --resume") from None
-        except BaseException:
-            self.session.abandon()  # the journal keeps every finished episode for --resume
-            raise
-        finally:
-            if bar is not None:
-                bar.close()
+    def run(self, engine: RolloutEngine | None, signals: bool = True) -> Summary:
+        super().run(engine, signals)
         if self.summary.stored >= self.config.episodes or (
             self.config.source is not None and not self.summary.interrupted
         ):
             self.session.finish()  # a conversion is done when every source seed was tried, stored or not
         return self.summary
+
+    def _record(self, engine: RolloutEngine | None, stops: StopSignals) -> None:
+        replayed = self._republish(stops)
+        remaining = self.config.episodes - self.summary.stored
+        if remaining > 0 and engine is not None:
+            self._open_bar(remaining, f"record {self.config.task}")
+            self._record_new(engine, stops, replayed)
+        with stops.storing():
+            self.session.commit()
+
+    def _stopped(self) -> None:
+        self.session.commit()
+
+    def _abandon(self) -> None:
+        self.session.abandon()  # the journal keeps every finished episode for --resume
 
     def _republish(self, stops: StopSignals) -> list[int]:
         """Episodes a killed run had finished but not committed, published first, in seed order, and committed at
@@ -154,8 +137,8 @@ class Recording:
 
         return iter([s for s in SourceRecording(self.config.source).seeds if s not in done])
 
-    def _record_new(self, engine: RolloutEngine, stops: StopSignals, replayed: list[int], bar) -> None:
-        summary = self.summary
+    def _record_new(self, engine: RolloutEngine, stops: StopSignals, replayed: list[int]) -> None:
+        summary, bar = self.summary, self.bar
 
         def needed() -> int:  # in flight: never more episodes than are still needed or may still be attempted
             return min(self.config.episodes - summary.stored, self.limit - summary.attempted)

@@ -20,11 +20,11 @@ from __future__ import annotations
 import io
 import os
 import shutil
-import signal
 import sys
 import tarfile
 import tempfile
 import time
+from collections.abc import Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,13 +32,12 @@ from typing import TYPE_CHECKING
 
 from kitbench import faults
 from kitbench.engine import RolloutEngine, Work, make_executor
-from kitbench.engine.executor import ClusterLost
-from kitbench.errors import KitbenchError
 from kitbench.recording.config import RecordConfig
 from kitbench.recording.durable import fsync_dir, fsync_new
 from kitbench.recording.journal import SHARDS_DIR, EpisodeJournal
-from kitbench.recording.stops import Stopped, StopSignals
-from kitbench.recording.summary import Summary, attempt_limit, folder_size
+from kitbench.recording.run import RecordingRun
+from kitbench.recording.stops import StopSignals
+from kitbench.recording.summary import Summary
 
 if TYPE_CHECKING:
     from kitbench.metadata import EpisodeInfo
@@ -161,86 +160,95 @@ def _episodes(root: Path) -> list[EpisodeInfo]:
 
 
 def record_sharded(config: RecordConfig, progress: bool) -> Summary:
-    """`record` with `config.executor.shard_episodes` > 0 (validated by the caller)."""
-    from kitbench.recording.dataset import recover, remove_recording
+    """`record` with `config.executor.shard_episodes` > 0 (validated by the caller). Workers start before
+    anything is written or replaced."""
+    from kitbench.recording.dataset import recover
 
     out = config.out
     journal = EpisodeJournal(out)
     done: list[Path] = []  # recordings to merge: the published dataset (a resumed one), then the shards
-    shard_episodes = config.executor.shard_episodes
     if not config.output.overwrite:
         recover(out)
         done = ([out] if out.exists() else []) + _unpublished(journal, out)
-    seeds = [e.seed for root in done for e in _episodes(root)]
-    summary = Summary(stored=len(seeds))
+    recording = ShardedRecording(config, journal, done, progress)
     started = time.monotonic()
-    workers = ExitStack()
-    engine = None
-    if summary.stored < config.episodes:
-        shards = -(-(config.episodes - summary.stored) // shard_episodes)  # rounded up
-        executor = make_executor(config.executor, jobs=shards)
-        engine = workers.enter_context(RolloutEngine(executor, ShardWork(config)))
-    bar = None
-    try:
-        if config.output.overwrite:
-            remove_recording(out)
-        journal.start(config.info())
-        limit = attempt_limit(config)
-        in_flight = {"jobs": 0, "seeds": 0}
-        last_seed = max(seeds, default=config.demo.seed - 1)
-        if engine is not None and progress:
-            from kitbench.progress import progress as progress_bar
+    with ExitStack() as workers:
+        engine = None
+        missing = config.episodes - recording.summary.stored
+        if missing > 0:
+            shards = -(-missing // config.executor.shard_episodes)  # rounded up
+            executor = make_executor(config.executor, jobs=shards)
+            engine = workers.enter_context(RolloutEngine(executor, ShardWork(config)))
+        summary = recording.run(engine)
+    return summary.measured(started, out)
 
-            bar = progress_bar(config.episodes - summary.stored, f"record {config.task} (shards)")
 
-        def missing() -> int:  # seeds still to hand out
-            return min(config.episodes - summary.stored, limit - summary.attempted) - in_flight["seeds"]
+class ShardedRecording(RecordingRun):
+    """Shards handed out in seed order, each stored in the journal as it arrives, merged into the dataset at the
+    end; a stop keeps the stored shards in the journal for --resume."""
 
-        def needed() -> int:  # jobs that may be in flight: those running, and one more while seeds are missing
-            return in_flight["jobs"] + (1 if missing() > 0 else 0)
+    kept = "shard"
 
-        def blocks():
-            seed = max(last_seed + 1, config.demo.seed)
-            while True:
-                size = min(shard_episodes, missing())
-                in_flight["jobs"] += 1
-                in_flight["seeds"] += size
-                yield seed, size
-                seed += size
+    def __init__(self, config: RecordConfig, journal: EpisodeJournal, done: list[Path], progress: bool):
+        seeds = [e.seed for root in done for e in _episodes(root)]
+        super().__init__(config, Summary(stored=len(seeds)), progress)
+        self.journal, self.done = journal, done
+        self.last_seed = max(seeds, default=config.demo.seed - 1)
+        self.jobs_in_flight = 0
+        self.seeds_in_flight = 0
 
-        with StopSignals() as stops:
-            if engine is not None:
-                for (_, size), result in engine.results(blocks(), needed):
-                    in_flight["jobs"] -= 1
-                    in_flight["seeds"] -= size
-                    summary.attempted += result.seeds
-                    summary.successes += result.successes
-                    summary.physics_errors += result.physics_errors
-                    if result.stored:
-                        with stops.storing():
-                            done.append(_store_shard(journal, result))
-                            summary.stored += result.stored
-                            summary.frames += result.frames
-                        if bar is not None:
-                            bar.update(result.stored)
-                    if summary.should_stop(config.episodes, limit):
-                        break
-            with stops.storing():
-                _publish(done, out)
+    def _start(self, engine: RolloutEngine | None) -> None:
+        from kitbench.recording.dataset import remove_recording
+
+        if self.config.output.overwrite:
+            remove_recording(self.config.out)
+        self.journal.start(self.config.info())
+        if engine is not None:
+            self._open_bar(self.config.episodes - self.summary.stored, f"record {self.config.task} (shards)")
+
+    def _record(self, engine: RolloutEngine | None, stops: StopSignals) -> None:
+        summary = self.summary
+        if engine is not None:
+            for (_, size), result in engine.results(self._blocks(), self._needed):
+                self.jobs_in_flight -= 1
+                self.seeds_in_flight -= size
+                summary.attempted += result.seeds
+                summary.successes += result.successes
+                summary.physics_errors += result.physics_errors
+                if result.stored:
+                    with stops.storing():
+                        self.done.append(_store_shard(self.journal, result))
+                        summary.stored += result.stored
+                        summary.frames += result.frames
+                    if self.bar is not None:
+                        self.bar.update(result.stored)
+                if summary.should_stop(self.config.episodes, self.limit):
+                    break
+        with stops.storing():
+            _publish(self.done, self.config.out)
+
+    def _recorded(self) -> None:
         faults.point("shards.swapped")
-        journal.remove()
-    except ClusterLost as exc:  # finished shards stay in the journal for --resume
-        raise KitbenchError(f"{exc}; every shard finished before is kept: continue with --resume") from None
-    except KeyboardInterrupt as exc:  # finished shards stay in the journal for --resume
-        summary.interrupted = True
-        summary.signal = exc.signum if isinstance(exc, Stopped) else signal.SIGINT
-    finally:
-        workers.close()
-        if bar is not None:
-            bar.close()
-    summary.seconds = time.monotonic() - started
-    summary.size_bytes = folder_size(out)
-    return summary
+        self.journal.remove()
+
+    def _missing(self) -> int:
+        """Seeds still to hand out."""
+        summary = self.summary
+        return min(self.config.episodes - summary.stored, self.limit - summary.attempted) - self.seeds_in_flight
+
+    def _needed(self) -> int:
+        """Jobs that may be in flight: those running, and one more while seeds are missing."""
+        return self.jobs_in_flight + (1 if self._missing() > 0 else 0)
+
+    def _blocks(self) -> Iterator[tuple[int, int]]:
+        """(first seed, seed count) of each shard, consecutive after the last seed stored."""
+        seed = max(self.last_seed + 1, self.config.demo.seed)
+        while True:
+            size = min(self.config.executor.shard_episodes, self._missing())
+            self.jobs_in_flight += 1
+            self.seeds_in_flight += size
+            yield seed, size
+            seed += size
 
 
 def _publish(done: list[Path], out: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +72,12 @@ class Summary:
                 "continue with --resume",
             )
         return lines
+
+    def measured(self, started: float, out: Path) -> Summary:
+        """This summary with the run's seconds since `started` (`time.monotonic()`) and the size of `out`."""
+        self.seconds = time.monotonic() - started
+        self.size_bytes = folder_size(out)
+        return self
 
     def should_stop(self, episodes: int, limit: int) -> bool:
         """Whether a recording asked for `episodes` is done: all stored, or `limit` attempts made (it gave up)."""

@@ -99,7 +99,7 @@ class LiftPegUprightEnv(TabletopEnv):
         }
     }
     expert: ClassVar[dict[str, str | type]] = {
-        "panda": "kitbench.planning.lift_peg_upright:LiftPegUprightPlanner",
+        "panda": "kitbench.planning.lift_peg_upright_panda:LiftPegUprightPlanner",
         "fetch": "kitbench.planning.lift_peg_upright_fetch:FetchLiftPegUprightPlanner",
         "so101": "kitbench.planning.lift_peg_upright_so101:SO101LiftPegUprightPlanner",
     }

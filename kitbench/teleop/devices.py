@@ -14,7 +14,7 @@ import typing
 from functools import cache
 from typing import Any
 
-from kitbench.errors import KitbenchError
+from kitbench.errors import KitbenchError, one_line
 
 
 @cache
@@ -80,8 +80,7 @@ def make_config(device_type: str, options: dict[str, Any], more: tuple[str, ...]
     try:
         return draccus.decode(cls, _as_declared(cls, options))
     except draccus.utils.DecodingError as exc:
-        reason = str(exc).splitlines()[0]
-        raise KitbenchError(f"teleop:{device_type}: {reason}; valid options: {valid}") from None
+        raise KitbenchError(f"teleop:{device_type}: {one_line(exc, typed=False)}; valid options: {valid}") from None
 
 
 def _as_declared(cls: type, options: dict[str, Any]) -> dict[str, Any]:
@@ -106,12 +105,6 @@ def label(device_type: str, config) -> str:
     return device_type + (f" on {port}" if port else "")
 
 
-def reason(exc: BaseException) -> str:
-    """A driver's exception as one line."""
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
-
-
 def make_device(device_type: str, config):
     """The device (not connected yet), from lerobot's factory; a missing driver package is one line."""
     from lerobot.teleoperators import make_teleoperator_from_config
@@ -119,7 +112,7 @@ def make_device(device_type: str, config):
     try:
         return make_teleoperator_from_config(config)
     except (ImportError, ValueError, TypeError) as exc:
-        raise KitbenchError(f"teleop:{label(device_type, config)}: cannot build the device: {reason(exc)}") from None
+        raise KitbenchError(f"teleop:{label(device_type, config)}: cannot build the device: {one_line(exc)}") from None
 
 
 def action_keys(device) -> list[str]:
