@@ -29,6 +29,7 @@ from kitbench.teleop.mapping import JointMapping, Mapping, make_mapping
 from kitbench.teleop.operated import OperatorStop
 from kitbench.teleop.options import NAMES, split_options
 from kitbench.teleop.pacing import Pacer
+from kitbench.teleop.servo import ServoLimit
 from kitbench.teleop.view import make_view
 
 ALIGN_SAY_EVERY = 2.0  # seconds between the start-pose wait's lines
@@ -60,6 +61,7 @@ class TeleopPolicy:
         self.connected = False
         self.env: KitbenchEnv | None = None
         self.mapping: Mapping | None = None
+        self.servo: ServoLimit | None = None
         self.pacer: Pacer | None = None
         self.seed: int | None = None
         self.obs: Any = None
@@ -86,7 +88,7 @@ class TeleopPolicy:
         say(f"{self.device_label} connected; {self.keys.help}")
 
     def episode_hooks(self) -> list[Hook]:
-        return [TeleopHook(self.paced, self.keys, self.view, self.clipped)]
+        return [TeleopHook(self.paced, self.keys, self.view, self.clipped, self.limited)]
 
     def paced(self) -> Pacer | None:
         """The pacer of the episode about to run (None without real-time pacing)."""
@@ -124,8 +126,11 @@ class TeleopPolicy:
             self.connect()
         if self.mapping is None or env is not self.env:
             self.env, self.mapping = env, self._mapping(env)
+            self.servo = ServoLimit(env, joint_target_to_action)
             self.pacer = Pacer(env.control_timestep)
         self.mapping.reset(env)
+        assert self.servo is not None
+        self.servo.reset(env)
         self.seed, self.obs, self.last = seed, obs, None
         self.keys.clear()
         self.view.episode(env, seed)
@@ -133,7 +138,7 @@ class TeleopPolicy:
             self._align(env, self.mapping)
 
     def act(self, obs) -> np.ndarray:
-        assert self.env is not None and self.mapping is not None, "reset() first"
+        assert self.env is not None and self.mapping is not None and self.servo is not None, "reset() first"
         try:
             device_action = self.device.get_action()
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is gone: one line)
@@ -143,7 +148,7 @@ class TeleopPolicy:
                 f"teleop:{self.device_label} disconnected while recording seed {self.seed}: {reason(exc)}; the "
                 "episode in flight is discarded and every finished one kept: continue with --resume"
             ) from None
-        self.last = self.mapping.action(self.env, device_action)
+        self.last = self.servo(self.env, self.mapping.action(self.env, device_action))
         return self.last
 
     def _hold(self) -> np.ndarray:
@@ -153,6 +158,10 @@ class TeleopPolicy:
 
     def clipped(self) -> int:
         return self.mapping.clips.total if isinstance(self.mapping, JointMapping) else 0
+
+    def limited(self) -> int:
+        """Steps of the episode in flight where the follower's joint speeds held the device back."""
+        return 0 if self.servo is None else self.servo.limited_steps
 
     def _read(self) -> dict[str, Any]:
         try:

@@ -26,8 +26,9 @@ class TeleopHook(Hook):
     episode; `clipped()` counts the device's values clipped so far (its line at the episode's end says how many this
     episode had)."""
 
-    def __init__(self, pacer: Callable[[], Pacer | None], keys: EpisodeKeys, view: View, clipped: Callable[[], int]):
-        self.pacer_of, self.keys, self.view, self.clipped = pacer, keys, view, clipped
+    def __init__(self, pacer: Callable[[], Pacer | None], keys: EpisodeKeys, view: View, clipped: Callable[[], int],
+                 limited: Callable[[], int]):  # fmt: skip
+        self.pacer_of, self.keys, self.view, self.clipped, self.limited = pacer, keys, view, clipped, limited
         self.pacer: Pacer | None = None
         self.clipped_before = 0
 
@@ -57,4 +58,6 @@ class TeleopHook(Hook):
         ended = "" if episode.control is None else f", {ENDED[episode.control]}"
         clipped = self.clipped() - self.clipped_before
         clips = f", {clipped} values clipped to the joint limits" if clipped else ""
-        say(f"seed {episode.seed}: {outcome}, {episode.steps} steps{ended}{clips}")
+        limited = self.limited()
+        slowed = f", {limited} steps held to the follower's joint speeds" if limited else ""
+        say(f"seed {episode.seed}: {outcome}, {episode.steps} steps{ended}{clips}{slowed}")
