@@ -35,10 +35,15 @@ from kitbench.teleop.view import make_view
 ALIGN_SAY_EVERY = 2.0  # seconds between the start-pose wait's lines
 
 
-def _is_keyboard(device) -> bool:
+def _episode_keys(device) -> EpisodeKeys:
+    """The episode keys beside the device: lerobot's keyboards drive with the arrows, kitbench's with letters."""
     from lerobot.teleoperators.keyboard import KeyboardTeleop
 
-    return isinstance(device, KeyboardTeleop)
+    from kitbench.teleop.keyboard import KitbenchKeyboard
+
+    if isinstance(device, KitbenchKeyboard):
+        return EpisodeKeys(letters=False)
+    return EpisodeKeys(arrows=not isinstance(device, KeyboardTeleop))
 
 
 class TeleopPolicy:
@@ -56,7 +61,7 @@ class TeleopPolicy:
         self.device = make_device(device_type, self.config)
         self.name = f"teleop:{device_type}"
         o = self.options
-        self.keys = EpisodeKeys(arrows=not _is_keyboard(self.device))
+        self.keys = _episode_keys(self.device)
         self.view = make_view(o.display, o.display_ip, o.display_port, o.save_path, o.display_scene)
         self.connected = False
         self.env: KitbenchEnv | None = None
@@ -122,7 +127,15 @@ class TeleopPolicy:
         keys = action_keys(self.device)
         label = f"teleop:{self.device_label}"
         return make_mapping(
-            label, keys, env, self.config, joint_target_to_action, o.ee_speed, o.phone_scale, o.gripper_speed
+            label,
+            keys,
+            env,
+            self.config,
+            joint_target_to_action,
+            o.ee_speed,
+            o.phone_scale,
+            o.gripper_speed,
+            o.turn_speed,
         )
 
     def reset(self, env, seed, obs, info) -> None:
