@@ -32,7 +32,7 @@ from lerobot.teleoperators import Teleoperator, TeleoperatorConfig
 from kitbench.cli import main as kitbench
 from kitbench.envs.features import STATE, observation_frame
 from kitbench.policies.registry import make_policy, policy_source
-from kitbench.registration import make_env
+from kitbench.registration import make_env, task_entry
 from kitbench.rollout import Hook, OneEpisode, run
 
 ROBOT, MODE, DEVICE = "so101", "pd_joint_pos", "kitbench_bench_arm"
@@ -164,6 +164,8 @@ def run_task(task: str, seconds: float, obs_mode: str, display: str, scene: int 
     rrd = folder / f"{task}.rrd"
     VIEW.clear()
     VIEW.update({"display": display} | ({"display_save": str(rrd)} if display == "rerun" else {}))
+    # a person's episode has no step limit: the expert's unsuccessful ones end where the task's limit ends them
+    VIEW["max_seconds"] = task_entry(task).env_class.episode_steps(ROBOT) * period
     if scene is not None:
         VIEW["display_scene"] = scene
     out = folder / task

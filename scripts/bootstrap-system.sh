@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs the system pieces kitbench needs that pip cannot give: a Vulkan loader with a driver SAPIEN
-# accepts (software llvmpipe from Mesa >= 25 on a CPU-only Debian 12) and FFmpeg for video decoding.
-# Idempotent: does nothing when a Vulkan ICD and ffmpeg are already present.
+# accepts (software llvmpipe from Mesa >= 25 on a CPU-only Debian 12), FFmpeg for video decoding, and a virtual
+# X display with a key typist (Xvfb, xdotool) on which the tests type into the keyboard teleoperator's listener.
+# Idempotent: does nothing when they are all present.
 set -euo pipefail
 
 have_vulkan_icd() {
@@ -39,6 +40,8 @@ need=()
 { [ -e /usr/lib/x86_64-linux-gnu/libvulkan.so.1 ] || ldconfig -p 2>/dev/null | grep -q 'libvulkan.so.1 '; } || need+=(libvulkan1)
 have_vulkan_icd || need+=(mesa-vulkan-drivers)
 command -v ffmpeg >/dev/null 2>&1 || need+=(ffmpeg)
+command -v Xvfb >/dev/null 2>&1 || need+=(xvfb)
+command -v xdotool >/dev/null 2>&1 || need+=(xdotool)
 
 if [ ${#need[@]} -eq 0 ]; then
   exit 0
@@ -47,7 +50,8 @@ fi
 if [ "$(id -u)" != 0 ] || ! command -v apt-get >/dev/null 2>&1; then
   echo "kitbench: missing system packages: ${need[*]}" >&2
   echo "  Install as root: a Vulkan loader (libvulkan1), a Vulkan driver (your GPU's, or Mesa >= 25 'mesa-vulkan-drivers'" >&2
-  echo "  for CPU rendering; on Debian 12 from bookworm-backports) and ffmpeg. Then run this command again." >&2
+  echo "  for CPU rendering; on Debian 12 from bookworm-backports), ffmpeg, xvfb and xdotool. Then run this command" >&2
+  echo "  again." >&2
   exit 1
 fi
 

@@ -29,15 +29,21 @@ from kitbench.teleop.mapping import JointMapping, Mapping, make_mapping
 from kitbench.teleop.operated import OperatorStop
 from kitbench.teleop.options import NAMES, split_options
 from kitbench.teleop.pacing import Pacer
+from kitbench.teleop.servo import ServoLimit
 from kitbench.teleop.view import make_view
 
 ALIGN_SAY_EVERY = 2.0  # seconds between the start-pose wait's lines
 
 
-def _is_keyboard(device) -> bool:
+def _episode_keys(device) -> EpisodeKeys:
+    """The episode keys beside the device: lerobot's keyboards drive with the arrows, kitbench's with letters."""
     from lerobot.teleoperators.keyboard import KeyboardTeleop
 
-    return isinstance(device, KeyboardTeleop)
+    from kitbench.teleop.keyboard import KitbenchKeyboard
+
+    if isinstance(device, KitbenchKeyboard):
+        return EpisodeKeys(letters=False)
+    return EpisodeKeys(arrows=not isinstance(device, KeyboardTeleop))
 
 
 class TeleopPolicy:
@@ -55,15 +61,17 @@ class TeleopPolicy:
         self.device = make_device(device_type, self.config)
         self.name = f"teleop:{device_type}"
         o = self.options
-        self.keys = EpisodeKeys(arrows=not _is_keyboard(self.device))
+        self.keys = _episode_keys(self.device)
         self.view = make_view(o.display, o.display_ip, o.display_port, o.save_path, o.display_scene)
         self.connected = False
         self.env: KitbenchEnv | None = None
         self.mapping: Mapping | None = None
+        self.servo: ServoLimit | None = None
         self.pacer: Pacer | None = None
         self.seed: int | None = None
         self.obs: Any = None
         self.last: np.ndarray | None = None
+        self.reads = 0  # the device's values read so far: none yet, and a failure is a device not found
 
     # -- what the recorder asks (`kitbench.teleop.operated.Operated`) ------------------------------------------
     @property
@@ -85,8 +93,12 @@ class TeleopPolicy:
         self.view.open()
         say(f"{self.device_label} connected; {self.keys.help}")
 
+    @property
+    def task_step_limit(self) -> bool:
+        return False  # time is the person's: they end the episode, or success does, or `max_seconds`
+
     def episode_hooks(self) -> list[Hook]:
-        return [TeleopHook(self.paced, self.keys, self.view, self.clipped)]
+        return [TeleopHook(self.paced, self.keys, self.view, self.clipped, self.limited, self.options.max_seconds)]
 
     def paced(self) -> Pacer | None:
         """The pacer of the episode about to run (None without real-time pacing)."""
@@ -115,7 +127,15 @@ class TeleopPolicy:
         keys = action_keys(self.device)
         label = f"teleop:{self.device_label}"
         return make_mapping(
-            label, keys, env, self.config, joint_target_to_action, o.ee_speed, o.phone_scale, o.gripper_speed
+            label,
+            keys,
+            env,
+            self.config,
+            joint_target_to_action,
+            o.ee_speed,
+            o.phone_scale,
+            o.gripper_speed,
+            o.turn_speed,
         )
 
     def reset(self, env, seed, obs, info) -> None:
@@ -124,8 +144,11 @@ class TeleopPolicy:
             self.connect()
         if self.mapping is None or env is not self.env:
             self.env, self.mapping = env, self._mapping(env)
+            self.servo = ServoLimit(env, joint_target_to_action)
             self.pacer = Pacer(env.control_timestep)
         self.mapping.reset(env)
+        assert self.servo is not None
+        self.servo.reset(env)
         self.seed, self.obs, self.last = seed, obs, None
         self.keys.clear()
         self.view.episode(env, seed)
@@ -133,18 +156,32 @@ class TeleopPolicy:
             self._align(env, self.mapping)
 
     def act(self, obs) -> np.ndarray:
-        assert self.env is not None and self.mapping is not None, "reset() first"
+        assert self.env is not None and self.mapping is not None and self.servo is not None, "reset() first"
         try:
             device_action = self.device.get_action()
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is gone: one line)
             if self.keys.stopping and self.last is not None:
                 return self._hold()  # escape also lets go of a keyboard device: the episode stops at this step
-            raise KitbenchError(
-                f"teleop:{self.device_label} disconnected while recording seed {self.seed}: {one_line(exc)}; the "
-                "episode in flight is discarded and every finished one kept: continue with --resume"
-            ) from None
-        self.last = self.mapping.action(self.env, device_action)
+            raise self._lost(exc, f"while recording seed {self.seed}", "the episode in flight is discarded and "
+                             "every finished one kept") from None  # fmt: skip
+        self.reads += 1
+        self.buttons()
+        self.last = self.servo(self.env, self.mapping.action(self.env, device_action))
         return self.last
+
+    def buttons(self) -> None:
+        """The device's own episode buttons (lerobot's `get_teleop_events`: a gamepad's), as the episode keys."""
+        events = getattr(self.device, "get_teleop_events", None)
+        if events is not None:
+            self.keys.device_events(events())
+
+    def _lost(self, exc: BaseException, when: str, kept: str) -> KitbenchError:
+        """The device failing: not found when it never gave a value (nothing to resume), else disconnected."""
+        if not self.reads:
+            return KitbenchError(f"teleop:{self.device_label}: not found: {one_line(exc)}")
+        return KitbenchError(
+            f"teleop:{self.device_label} disconnected {when}: {one_line(exc)}; {kept}: continue with --resume"
+        )
 
     def _hold(self) -> np.ndarray:
         """The arm held where the device last put it: a leader's last targets, no end-effector motion."""
@@ -154,14 +191,18 @@ class TeleopPolicy:
     def clipped(self) -> int:
         return self.mapping.clips.total if isinstance(self.mapping, JointMapping) else 0
 
+    def limited(self) -> int:
+        """Steps of the episode in flight where the follower's joint speeds held the device back."""
+        return 0 if self.servo is None else self.servo.limited_steps
+
     def _read(self) -> dict[str, Any]:
         try:
-            return self.device.get_action()
+            read = self.device.get_action()
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is gone: one line)
-            raise KitbenchError(
-                f"teleop:{self.device_label} disconnected while waiting for the start pose of seed {self.seed}: "
-                f"{one_line(exc)}; every finished episode is kept: continue with --resume"
-            ) from None
+            when = f"while waiting for the start pose of seed {self.seed}"
+            raise self._lost(exc, when, "every finished episode is kept") from None
+        self.reads += 1
+        return read
 
     def _align(self, env: KitbenchEnv, mapping: JointMapping) -> None:
         """Wait until the leader is within `align` of the simulated arm's start pose (right arrow: start now;

@@ -43,6 +43,9 @@ BODY_READY = (0.0, 0.562, 0.386)
 # Fetch can make.
 ARM_VELOCITY_LIMITS = (1.256, 1.0, 1.57, 1.5, 1.57, 2.26, 2.26)
 ARM_ACCELERATION_LIMITS = (1.5, 1.0, 1.5, 1.5, 1.5, 2.5, 2.5)
+# The URDF's joint velocity limits (the hardware's; the planner's above stay below them): what a person's joint
+# targets are rate-limited to.
+URDF_VELOCITY_LIMITS = (1.256, 1.454, 1.571, 1.521, 1.571, 2.268, 2.268)
 # The SRDF's pairs (SAPIEN's loader, given no SRDF, would keep them colliding).
 SELF_COLLISION_IGNORED = (
     ("torso_fixed_link", "torso_lift_link"),
@@ -104,6 +107,7 @@ FETCH = RobotSpec(
     base_pose=((-1.05, 0.0, -TABLE_HEIGHT), (1.0, 0.0, 0.0, 0.0)),
     arm_velocity_limits=ARM_VELOCITY_LIMITS,
     arm_acceleration_limits=ARM_ACCELERATION_LIMITS,
+    joint_speed_limits=URDF_VELOCITY_LIMITS,
     finger_closing_axes=((0.0, 1.0, 0.0), (0.0, -1.0, 0.0)),  # the left finger sits at -y and closes along +y
     ee_position_bound=1.5,  # the base frame is on the floor: the TCP works 0.9-1.4 m above it
     body_joints=BODY_JOINTS,

@@ -72,6 +72,7 @@ PANDA = RobotSpec(
     base_pose=BASE_POSE,
     arm_velocity_limits=ARM_VELOCITY_LIMITS,
     arm_acceleration_limits=ARM_ACCELERATION_LIMITS,
+    joint_speed_limits=ARM_VELOCITY_LIMITS,
     self_collision_ignored=SELF_COLLISION_IGNORED,
     decimate_visuals=Decimation(),
 )

@@ -105,6 +105,7 @@ SO101 = RobotSpec(
     base_pose=BASE_POSE,
     arm_velocity_limits=(NO_LOAD_SPEED,) * 5,
     arm_acceleration_limits=(SERVO_ACCELERATION,) * 5,
+    joint_speed_limits=(NO_LOAD_SPEED,) * 5,
     # the fixed jaw closes along its link's +x (towards the moving jaw), the moving jaw along its link's -x
     finger_closing_axes=((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0)),
     fixed_jaw=True,

@@ -73,6 +73,9 @@ class RobotSpec:
     base_pose: tuple[tuple[float, float, float], tuple[float, float, float, float]]  # where it stands (world)
     arm_velocity_limits: tuple[float, ...]  # rad/s: IK steps and the experts' timing stay within them
     arm_acceleration_limits: tuple[float, ...]  # rad/s^2
+    # rad/s: the real arm's top joint speeds (its servos' or its maker's limits), which a person's joint targets are
+    # rate-limited to as the real drives would follow them (`kitbench.teleop.limits`)
+    joint_speed_limits: tuple[float, ...]
     # For each finger link, the direction in its own frame along which it closes (grasp detection).
     finger_closing_axes: tuple[tuple[float, float, float], ...] = ((0.0, -1.0, 0.0), (0.0, 1.0, 0.0))
     # One jaw fixed to the hand (the TCP on its face) and one moving onto it, instead of two fingers closing on the

@@ -31,6 +31,9 @@ def load_registry() -> None:
             except ImportError:
                 continue  # its SDK is missing: lerobot-record cannot offer it either
     register_third_party_plugins()
+    # kitbench's own: the keyboard and the gamepad with the turn
+    importlib.import_module("kitbench.teleop.config_keyboard")
+    importlib.import_module("kitbench.teleop.config_gamepad")
 
 
 def device_types() -> list[str]:

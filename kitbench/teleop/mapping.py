@@ -7,6 +7,8 @@ control mode), for three kinds of device, told apart by what `get_action` return
   any control mode (through `kitbench.policies.joint_targets.joint_target_to_action`);
 - end-effector deltas (`gamepad`, `keyboard_ee`): `delta_x`, `delta_y`, `delta_z` (each -1..1 of full deflection,
   in the robot's base frame) and `gripper` (0 close, 1 stay, 2 open), onto the end-effector delta modes;
+- end-effector deltas with the turn (`kitbench_keyboard`, `kitbench_gamepad`): those and `delta_pitch` (about the
+  TCP's y, the line between the fingers) and `delta_yaw` (about the base's vertical), onto the pose modes;
 - a phone (`phone`): its pose since the press that enabled it, through lerobot's own axis mapping
   (`MapPhoneActionToRobotAction`), latched on the commanded TCP at that press as lerobot's `EEReferenceAndDelta`
   does, and its gripper velocity; onto the end-effector delta modes and `pd_ee_pose`.
@@ -33,6 +35,8 @@ JointAction = Callable[[KitbenchEnv, np.ndarray, float], np.ndarray]
 
 EE_DELTA_MODES = ("pd_ee_delta_pos", "pd_ee_target_delta_pos", "pd_ee_delta_pose", "pd_ee_target_delta_pose")
 DELTA_KEYS = ("delta_x", "delta_y", "delta_z")
+TURN_KEYS = ("delta_pitch", "delta_yaw")
+TURN_MODES = ("pd_ee_delta_pose", "pd_ee_target_delta_pose", "pd_ee_pose")
 PHONE_KEYS = ("phone.pos", "phone.rot", "phone.raw_inputs", "phone.enabled")
 # lerobot's discrete gripper classes (`GamepadTeleop.GripperAction`): 0 close, 1 stay, 2 open
 GRIPPER_CLOSE, GRIPPER_OPEN = 0.5, 1.5
@@ -179,15 +183,49 @@ class DeltaMapping:
 
     def action(self, env: KitbenchEnv, device_action: dict[str, Any]) -> np.ndarray:
         arm = np.array([float(device_action.get(k, 0.0)) for k in DELTA_KEYS]) * self.step
-        if "gripper" in device_action:
-            command = float(device_action["gripper"])
-            if command < GRIPPER_CLOSE:
-                self.gripper = CLOSED
-            elif command > GRIPPER_OPEN:
-                self.gripper = OPEN
+        self.gripper = gripper_class(device_action, self.gripper)
         if env.control_mode.endswith("_pose"):
             arm = np.concatenate([arm, np.zeros(3)])
         return _in_box(env, arm, self.gripper)
+
+
+def gripper_class(device_action: dict[str, Any], held: float) -> float:
+    """The gripper command after lerobot's discrete class (0 close, 1 stay, 2 open), from `held`."""
+    if "gripper" not in device_action:
+        return held
+    command = float(device_action["gripper"])
+    return CLOSED if command < GRIPPER_CLOSE else OPEN if command > GRIPPER_OPEN else held
+
+
+class TurnMapping:
+    """Deltas with the turn: the commanded TCP moves `speed` m/s along the base frame's axes at full deflection,
+    turns `turn_speed` rad/s about the TCP's y (pitch: the line between the fingers) and the base's vertical (yaw),
+    from the TCP the controller was last commanded to; the gripper as lerobot's classes latch it."""
+
+    kind: str = "end-effector deltas with the turn"
+    modes: tuple[str, ...] | None = TURN_MODES
+
+    def __init__(self, env: KitbenchEnv, speed: float, turn_speed: float):
+        self.step = speed * env.control_timestep
+        self.turn = turn_speed * env.control_timestep
+        self.gripper = OPEN
+
+    def reset(self, env: KitbenchEnv) -> None:
+        self.gripper = OPEN
+
+    def target(self, commanded: np.ndarray, device_action: dict[str, Any]) -> np.ndarray:
+        """Where the deltas take the `commanded` TCP (4x4, base frame) in one control step."""
+        values = {k: float(np.clip(device_action.get(k, 0.0), -1.0, 1.0)) for k in (*DELTA_KEYS, *TURN_KEYS)}
+        target = commanded.copy()
+        target[:3, 3] += np.array([values[k] for k in DELTA_KEYS]) * self.step
+        pitch = axis_angle_to_matrix(np.array([0.0, values["delta_pitch"] * self.turn, 0.0]))
+        yaw = axis_angle_to_matrix(np.array([0.0, 0.0, values["delta_yaw"] * self.turn]))
+        target[:3, :3] = yaw @ commanded[:3, :3] @ pitch
+        return target
+
+    def action(self, env: KitbenchEnv, device_action: dict[str, Any]) -> np.ndarray:
+        self.gripper = gripper_class(device_action, self.gripper)
+        return tcp_target_to_action(env, self.target(commanded_tcp(env), device_action), self.gripper)
 
 
 class PhoneMapping:
@@ -231,7 +269,7 @@ class PhoneMapping:
 
 
 def make_mapping(label: str, keys: list[str], env: KitbenchEnv, config, joint_action: JointAction, speed: float,
-                 phone_scale: float, gripper_speed: float) -> Mapping:  # fmt: skip
+                 phone_scale: float, gripper_speed: float, turn_speed: float) -> Mapping:  # fmt: skip
     """The mapping for a device that names its actions `keys` on `env` (in its control mode), or one line saying
     why it cannot drive it; `joint_action` expresses a leader arm's joint targets in the env's mode."""
     given = set(keys)
@@ -241,6 +279,8 @@ def make_mapping(label: str, keys: list[str], env: KitbenchEnv, config, joint_ac
 
         platform = config.phone_os if isinstance(config, PhoneConfig) else PhoneOS.IOS
         mapping = PhoneMapping(env, platform, phone_scale, gripper_speed)
+    elif set(DELTA_KEYS) | set(TURN_KEYS) <= given:
+        mapping = TurnMapping(env, speed, turn_speed)
     elif set(DELTA_KEYS) <= given:
         mapping = DeltaMapping(env, speed)
     elif set(JointMapping.names(env)) <= given:

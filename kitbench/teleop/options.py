@@ -28,6 +28,9 @@ class TeleopOptions:
     realtime: bool = True
     # End-effector deltas: the TCP's speed at full deflection, m/s.
     ee_speed: float = 0.1
+    # End-effector deltas with the turn (kitbench_keyboard, kitbench_gamepad): the turn's speed at full deflection,
+    # rad/s.
+    turn_speed: float = 0.6
     # A phone: metres the TCP moves per metre the phone moves.
     phone_scale: float = 1.0
     # A phone: jaw percent a control step per unit of gripper velocity.
@@ -35,6 +38,9 @@ class TeleopOptions:
     # A leader arm: each episode starts once every joint is within this many degrees of the simulated arm's
     # (0: at once).
     align: float = 10.0
+    # The longest an episode may run, seconds (None: until the person ends it or success does, as LeIsaac turns the
+    # time-out off while a person drives); the task's own step limit does not apply to a person's episodes.
+    max_seconds: float | None = None
 
     @property
     def save_path(self) -> Path | None:
@@ -60,7 +66,9 @@ def split_options(options: dict[str, Any]) -> tuple[TeleopOptions, dict[str, Any
         raise KitbenchError(f"unknown teleop option display={display!r}; valid choices: {', '.join(DISPLAYS)}")
     if not isinstance(own.get("realtime", True), bool):
         raise KitbenchError(f"teleop option realtime must be true or false, got {own['realtime']!r}")
-    for name in ("ee_speed", "phone_scale", "gripper_speed"):
+    if own.get("max_seconds") is not None:
+        _number("max_seconds", own["max_seconds"], 1e-9)
+    for name in ("ee_speed", "turn_speed", "phone_scale", "gripper_speed"):
         if name in own:
             _number(name, own[name], 1e-9)
     for name in ("align", "display_scene"):
