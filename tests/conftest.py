@@ -56,3 +56,15 @@ def tiny_act_run(tmp_path_factory):
     inputs = [n for n in info if n.startswith("observation.")]
     lerobot_train(small_config(data, base, inputs, "act", steps=2), data, base / "train", base, "--save_freq=1")
     return base / "train"
+
+
+# KITBENCH_TEST_TIMES=FILE: each test's seconds (setup, call, teardown) appended as it ends, one line a phase, so a
+# run stopped part way still says where its time went (pytest's --durations prints only at the end).
+_TIMES = os.environ.get("KITBENCH_TEST_TIMES")
+
+
+def pytest_runtest_logreport(report):
+    if _TIMES:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(_TIMES, "a") as out:
+            out.write(f"{report.duration:.2f}\t{report.when}\t{worker}\t{report.outcome}\t{report.nodeid}\n")
