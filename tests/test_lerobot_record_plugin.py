@@ -1,15 +1,17 @@
 """LeRobot's own commands on the simulated SO-101 (`--robot.type=kitbench_so101`) as docs/teleoperation.md writes
-them: the `lerobot-teleoperate`, `lerobot-record` and `lerobot-rollout` lines parsed from the docs and run in a
-process each, offline, with a scripted leader arm (`tests.lerobot_scripted`); the recording's episodes reset at
-LeRobot's boundaries only, without a jump inside, each one's seed stored; the servos' speed limit on a leader's jump;
-the start-pose wait; the episode bookkeeping at lerobot-record's boundaries and re-record."""
+them: the `lerobot-teleoperate`, `lerobot-record` and `lerobot-rollout` lines parsed from the docs and run through
+each command's own `main()`, offline, with a scripted leader arm (`tests.lerobot_scripted`); the recording's episodes
+reset at LeRobot's boundaries only, without a jump inside, each one's seed stored; the servos' speed limit on a
+leader's jump; the start-pose wait; re-record."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import shlex
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +109,20 @@ class Lines(logging.Handler):
         self.lines.append(record.getMessage())
 
 
+@contextlib.contextmanager
+def plugin_lines() -> Iterator[list[str]]:
+    """The plugin's INFO lines while the block runs (lerobot's own logging set-up, which shows them, is left out)."""
+    plugin = logging.getLogger("lerobot_robot_kitbench")
+    lines, level = Lines(), plugin.level
+    plugin.addHandler(lines)
+    plugin.setLevel(logging.INFO)
+    try:
+        yield lines.lines
+    finally:
+        plugin.removeHandler(lines)
+        plugin.setLevel(level)
+
+
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory, poses) -> tuple[Path, list[str]]:
     """The documented lerobot-record line, run for two episodes with a reset between; the leader starts 25 degrees
@@ -116,17 +132,9 @@ def recorded(tmp_path_factory, poses) -> tuple[Path, list[str]]:
     start = poses[0]
     reads = [leader(start, 25.0)] * 10 + [leader(start)] * 20 + [leader(start, 60.0)] * 15 + [leader(start)]
     argv = replaced(doc_commands()["lerobot-record"], {**RECORD_OVERRIDES, "dataset.root": str(where / "sim")})
-    plugin = logging.getLogger("lerobot_robot_kitbench")
-    lines, level = Lines(), plugin.level
-    plugin.addHandler(lines)
-    plugin.setLevel(logging.INFO)
-    try:
-        with pytest.MonkeyPatch.context() as patch:
-            play([*argv, STATE_ONLY, "--robot.episode_length=30"], {"reads": reads}, patch)
-    finally:
-        plugin.removeHandler(lines)
-        plugin.setLevel(level)
-    return where / "sim", lines.lines
+    with plugin_lines() as lines, pytest.MonkeyPatch.context() as patch:
+        play([*argv, STATE_ONLY, "--robot.episode_length=30"], reads, patch)
+    return where / "sim", lines
 
 
 def frames(root: Path) -> pd.DataFrame:
@@ -169,3 +177,90 @@ def test_the_arm_waits_for_the_leader_and_says_which_joints_are_off(recorded):
         line.endswith("seed 0: the arm waits for the leader at its start pose (shoulder_pan.pos +25)") for line in lines
     )
     assert any(line.endswith("seed 0: the leader is at the start pose") for line in lines)
+
+
+def test_a_leader_jump_reaches_the_follower_over_the_steps_the_servo_needs_counted():
+    from lerobot.robots import RobotConfig, make_robot_from_config
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
+    config = RobotConfig.get_choice_class("kitbench_so101")(obs_mode="state", realtime=False)
+    robot = make_robot_from_config(config)
+    robot.connect()
+    try:
+        start = robot.get_observation()
+        goal = dict(start) | {"shoulder_pan.pos": start["shoulder_pan.pos"] + 60.0}
+        pans = [start["shoulder_pan.pos"]]
+        for _ in range(8):
+            assert robot.send_action(goal) == pytest.approx(goal)  # the goal is sent whole, not clipped
+            pans.append(robot.get_observation()["shoulder_pan.pos"])
+    finally:
+        robot.disconnect()
+    moved = np.array(pans) - pans[0]
+    needed = math.ceil(60.0 / SERVO_STEP)  # 5 steps of 13.5 degrees
+    assert np.diff(moved).max() <= SERVO_STEP * OVERSHOOT  # no faster than the servo
+    assert moved[needed - 1] < 60.0 - 1.0 and moved[needed] == pytest.approx(60.0, abs=0.5)
+    assert robot.limited_steps == needed - 1  # each step that ended short of the goal
+
+
+def test_a_re_recorded_episode_meets_its_seed_again(tmp_path, poses, monkeypatch):
+    """Left arrow during episode 0: LeRobot drops it and records episode 0 again, on seed 0 again."""
+    start = {**RECORD_OVERRIDES, "dataset.num_episodes": "1", "dataset.episode_time_s": "1"}
+    argv = replaced(doc_commands()["lerobot-record"], {**start, "dataset.root": str(tmp_path / "sim")})
+    with plugin_lines() as lines:
+        play([*argv, STATE_ONLY], [leader(poses[0])], monkeypatch, keys={5: "left"})
+    started = [line.split(": ", 1)[1] for line in lines if ": episode 0 on seed" in line]
+    assert started == ["episode 0 on seed 0", "episode 0 on seed 0"]
+    assert [(e.episode_index, e.seed) for e in read_episodes(tmp_path / "sim")] == [(0, 0)]
+    assert len(frames(tmp_path / "sim")) == read_episodes(tmp_path / "sim")[0].length  # the kept one's frames
+
+
+def test_the_documented_lerobot_teleoperate_line_runs(poses, monkeypatch):
+    argv = replaced(doc_commands()["lerobot-teleoperate"], SCRIPTED)
+    reads = play([*argv, STATE_ONLY, "--teleop_time_s=1"], [leader(poses[0], 10.0)], monkeypatch)
+    assert reads >= 10  # a second of lerobot's loop at 20 fps read the leader each time
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    """An untrained ACT of an SO-101 image recording's layout (its state, its two cameras, its six goals), saved as
+    lerobot-train saves a `pretrained_model`: what lerobot-rollout loads, not a trained policy."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies import make_pre_post_processors
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+
+    image = PolicyFeature(FeatureType.VISUAL, (3, 128, 128))
+    config = ACTConfig(
+        input_features={
+            "observation.state": PolicyFeature(FeatureType.STATE, (6,)),
+            "observation.images.front": image,
+            "observation.images.wrist": image,
+        },
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))},
+        chunk_size=5,
+        n_action_steps=5,
+        dim_model=64,
+        dim_feedforward=128,
+        n_encoder_layers=1,
+        n_decoder_layers=1,
+        pretrained_backbone_weights=None,
+        device="cpu",
+        push_to_hub=False,
+    )
+    vector = {"mean": np.zeros(6, np.float32), "std": np.full(6, 30.0, np.float32)}
+    pixels = {"mean": np.full((3, 1, 1), 0.5, np.float32), "std": np.full((3, 1, 1), 0.25, np.float32)}
+    stats = {"observation.state": vector, "action": vector}
+    stats |= {"observation.images.front": pixels, "observation.images.wrist": pixels}
+    folder = tmp_path_factory.mktemp("act") / "pretrained_model"
+    ACTPolicy(config).save_pretrained(folder)
+    for processor in make_pre_post_processors(config, dataset_stats=stats):
+        processor.save_pretrained(folder)
+    return folder
+
+
+def test_the_documented_lerobot_rollout_line_runs(checkpoint, needs_vulkan, monkeypatch):
+    argv = replaced(doc_commands()["lerobot-rollout"], {"policy.path": str(checkpoint), "duration": "2"})
+    with plugin_lines() as lines:
+        play(argv, [], monkeypatch)
+    assert any("connected: AssemblingKits-v1, seed 0, 20 Hz" in line for line in lines)
