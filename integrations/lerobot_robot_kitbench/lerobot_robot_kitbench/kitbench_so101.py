@@ -23,6 +23,7 @@ robot reports it.
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from collections.abc import Callable
 from functools import cached_property, lru_cache
@@ -38,6 +39,7 @@ from kitbench.envs.features import IMAGES, STATE, action_names, observation_feat
 from kitbench.envs.interface import KitbenchEnv
 from kitbench.policies.joint_targets import joint_target_to_action
 from kitbench.registration import make_env
+from kitbench.teleop import layout
 from kitbench.teleop.mapping import JointMapping
 from kitbench.teleop.servo import ServoLimit
 from lerobot_robot_kitbench import recorder
@@ -147,8 +149,19 @@ class KitbenchSO101(Robot):
         self.servo = ServoLimit(self.env, joint_target_to_action)
         self.joints = JointMapping(self.env, joint_target_to_action)
         recorder.install(type(self))  # under lerobot-record, its episodes drive the scenes
+        self._lay_out_rerun()
         self._new_scene(c.seed)
         logger.info("%s connected: %s, seed %d, %d Hz", self, c.task, c.seed, self.env.control_freq)
+
+    def _lay_out_rerun(self) -> None:
+        """Where a lerobot command shows its Rerun view (`--display_data=true`: a recording is open in this process),
+        lay it out before its first frame: the cameras, and per motor its state beside the leader's goal."""
+        if "rerun" not in sys.modules:
+            return  # no view: lerobot imports rerun only to show one
+        import rerun as rr
+
+        if rr.get_global_data_recording() is not None:
+            layout.send(self.motors, self.action_features, self.cameras)
 
     @property
     def is_calibrated(self) -> bool:
