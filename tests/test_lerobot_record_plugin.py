@@ -10,6 +10,7 @@ import contextlib
 import json
 import logging
 import math
+import re
 import shlex
 from collections.abc import Iterator
 from pathlib import Path
@@ -264,3 +265,23 @@ def test_the_documented_lerobot_rollout_line_runs(checkpoint, needs_vulkan, monk
     with plugin_lines() as lines:
         play(argv, [], monkeypatch)
     assert any("connected: AssemblingKits-v1, seed 0, 20 Hz" in line for line in lines)
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"align": -1.0}, "align must be a number of degrees >= 0, got -1.0"),
+        ({"viewer": True}, "viewer=true needs a display (DISPLAY is unset); without one, lerobot's own view can"),
+    ],
+)
+def test_bad_plugin_settings_are_one_line(settings, message, monkeypatch):
+    from lerobot.robots import RobotConfig
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    from kitbench.errors import KitbenchError
+
+    register_third_party_plugins()
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(KitbenchError, match=re.escape(message)):
+        RobotConfig.get_choice_class("kitbench_so101")(**settings)

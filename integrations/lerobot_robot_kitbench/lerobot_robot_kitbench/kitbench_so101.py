@@ -42,6 +42,7 @@ from kitbench.registration import make_env
 from kitbench.teleop import layout
 from kitbench.teleop.mapping import JointMapping
 from kitbench.teleop.servo import ServoLimit
+from kitbench.teleop.view import NoView, SapienView, View
 from lerobot_robot_kitbench import recorder
 from lerobot_robot_kitbench.config_kitbench_so101 import ROBOT, KitbenchSO101Config
 from lerobot_robot_kitbench.episodes import EpisodeFile, Take
@@ -105,6 +106,7 @@ class KitbenchSO101(Robot):
         self.take: Take | None = None  # the lerobot-record episode in progress
         self.index = 0  # its dataset episode index
         self.file: EpisodeFile | None = None
+        self.view: View = NoView()  # the SAPIEN viewer (`viewer`)
 
     # -- the layout ---------------------------------------------------------------------------------------------
     @cached_property
@@ -137,6 +139,8 @@ class KitbenchSO101(Robot):
         if self.env is not None:
             raise DeviceAlreadyConnectedError(f"{self} is already connected")
         c = self.config
+        self.view = SapienView() if c.viewer else NoView()
+        self.view.open()
         self.env = make_env(
             c.task,
             obs_mode=c.obs_mode,
@@ -144,6 +148,7 @@ class KitbenchSO101(Robot):
             robot_uids=ROBOT,
             sensor_configs=_sensors(c.camera_size),
             max_episode_steps=c.episode_length,
+            render_mode="rgb_array" if c.viewer else None,  # a viewer needs the scene rendered, as state has it not
         )
         self.scenes, self.due, self.phase, self.limited_steps = 0, None, FREE, 0
         self.servo = ServoLimit(self.env, joint_target_to_action)
@@ -180,6 +185,7 @@ class KitbenchSO101(Robot):
             self.file.settle()  # lerobot-record saved (or dropped) its last episode before letting go of the robot
         if self.limited_steps:
             logger.info("%s: the joints' speed limits held the arm back on %d steps", self, self.limited_steps)
+        self.view.close()
         self.env.close()
         self.env = None
 
@@ -290,6 +296,7 @@ class KitbenchSO101(Robot):
         vector = self._servo(env, np.array([self.goal[name] for name in self.action_features], dtype=np.float32))
         self.obs, _, _, truncated, info = env.step(vector)
         self.fresh = False
+        self.view.show(env, self.obs, vector)
         if info["success"] and self.first_success is None:
             self.first_success = self.steps
         self.steps += 1
@@ -325,6 +332,8 @@ class KitbenchSO101(Robot):
         env = self._env()
         self.obs, _ = env.reset(seed=seed)
         self.seed, self.steps, self.first_success, self.fresh = seed, 0, None, True
+        self.view.episode(env, seed)
+        self.view.show(env, self.obs, None)
         self.engaged = self.phase == FREE or not self.config.align
         assert self.servo is not None, "connect() first"
         self.servo.reset(env)
