@@ -13,7 +13,9 @@ episode boundaries on the seed of the dataset's episode (`seed` + its index; a r
 again), held still through its reset phase, and each episode's arm waits at the start pose until the leader is
 within `align` degrees of it; each saved episode's seed and success go to `meta/kitbench_episodes.jsonl`
 (`episodes`). Elsewhere (lerobot-teleoperate, lerobot-rollout) the scene resets itself, on the next seed, once it
-has run `settle_steps` past a success or reached its step limit, where a person resets a real station. Nothing is
+has run `settle_steps` past a success or reached its step limit, where a person resets a real station. A lerobot
+command's Rerun view (`--display_data`) is laid out at connect (`kitbench.teleop.layout`: the cameras, each motor's
+state beside the leader's goal); `viewer` opens a SAPIEN window on the scene. Nothing is
 calibrated (the simulated joints read the real arm's calibrated degrees by construction) and there is no port,
 torque or motor bus; the cameras are simulated at 128x128 (`camera_size`); the task's object state, which
 kitbench's state datasets also record (`observation.environment_state`), is not an observation here, as no real
