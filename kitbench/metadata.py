@@ -83,6 +83,9 @@ class RecordingInfo:
     rgb_storage: str = "video"
     label: str | None = None  # who labelled each frame's action (DAgger); None: the acting policy
     expert_options: dict[str, Any] | None = None  # the expert's config fields a recording replaced (close_steps=6)
+    # A person's recording (`teleop:<device>`): the device's options and the source's (port, id, display, ...), less
+    # anything secret; the device's type is the policy's
+    teleop_options: dict[str, Any] | None = None
     source: str | None = None  # the recording a conversion re-simulated
     kitbench_version: str | None = None  # None: made before 0.2.0
     # None: made before ACTION_CONVENTION (gripper +1 closed; stiffer arm drives, a grippier peg)
@@ -165,6 +168,7 @@ class RecordingInfo:
             "camera_view",
             "label",
             "expert_options",
+            "teleop_options",
             "source",
             "action_convention",
             "repo_id",
@@ -263,6 +267,7 @@ _SETTING_TYPES: dict[str, tuple[type, ...]] = {
     "rgb_storage": (str,),
     "label": (str, _NONE),
     "expert_options": (dict, _NONE),
+    "teleop_options": (dict, _NONE),
     "source": (str, _NONE),
     "kitbench_version": (str, _NONE),
     "action_convention": (str, _NONE),
@@ -280,6 +285,19 @@ def expert_options(policy: str, options) -> dict[str, Any] | None:
     """What a recording keeps as `expert_options`: the `--policy-option` pairs when the expert acts (they are its
     planner's settings), else None (a checkpoint's or a teleoperator's options are not the expert's)."""
     return (dict(options) or None) if policy == "expert" else None
+
+
+# Option names a recording never keeps (a device's credentials, should one take them).
+SECRET_WORDS = ("token", "secret", "password", "passwd", "key", "credential")
+
+
+def teleop_options(policy: str, options) -> dict[str, Any] | None:
+    """What a recording keeps as `teleop_options`: the `--policy-option` pairs of a teleoperated recording (the
+    device's port, id, ... and the source's own), less any whose name says it is secret; else None."""
+    if policy.partition(":")[0] != "teleop":
+        return None
+    kept = {k: v for k, v in dict(options).items() if not any(w in k.lower() for w in SECRET_WORDS)}
+    return kept or None
 
 
 def episodes_digest(data: bytes) -> str:
@@ -305,6 +323,9 @@ class EpisodeInfo:
     first_success: int | None = None
     task: str | None = None  # the instruction
     config: dict[str, Any] = field(default_factory=dict)  # the task's episode configuration, modes included
+    # A person's episode (`teleop:<device>`): how it ended (`ended`: key, with the `key`, success, limit), the values
+    # clipped to the joint limits and the steps rate-limited to the joint speeds; None for a policy's.
+    teleop: dict[str, Any] | None = None
 
     @classmethod
     def from_json(cls, data: dict) -> EpisodeInfo:
@@ -313,6 +334,8 @@ class EpisodeInfo:
 
     def to_json(self) -> dict:
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "config"}
+        if self.teleop is None:
+            del data["teleop"]  # a policy's episode reads as it always did
         return {**data, **self.config}
 
     def validate(self) -> None:
@@ -328,6 +351,7 @@ class EpisodeInfo:
             "length": whole(self.length) and self.length > 0,
             "first_success": self.first_success is None or whole(self.first_success),
             "task": self.task is None or isinstance(self.task, str),
+            "teleop": self.teleop is None or isinstance(self.teleop, dict),
         }
         for name, ok in checks.items():
             if not ok:

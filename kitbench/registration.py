@@ -87,10 +87,14 @@ def task_entry(name: str) -> TaskEntry:
     return TASKS[short]
 
 
+# `max_episode_steps` of an env without a step limit (gymnasium's spelling: no TimeLimit wrapper).
+NO_STEP_LIMIT = -1
+
+
 def make_env(task: str, **kwargs) -> KitbenchEnv:
     """`gymnasium.make` for a kitbench task by its short name (or gym id), with a clear error for unknown names,
-    and the step limit of the chosen robot (`TabletopEnv.robot_max_episode_steps`) unless one is given; as a
-    `KitbenchEnv`, the interface the rest of kitbench uses."""
+    and the step limit of the chosen robot (`TabletopEnv.robot_max_episode_steps`) unless one is given
+    (`NO_STEP_LIMIT`: none); as a `KitbenchEnv`, the interface the rest of kitbench uses."""
     from kitbench.envs.interface import KitbenchEnv
 
     entry = task_entry(task)

@@ -65,6 +65,7 @@ class Episode:
     first_success: int | None = None  # the index of the step whose outcome was the first success
     done: bool = False
     control: Control | None = None  # set by the hook that ended the episode at a person's request
+    teleop: dict[str, Any] | None = None  # a person's episode: how it ended, values clipped, steps rate-limited
 
     @property
     def success(self) -> bool:

@@ -174,7 +174,7 @@ def test_a_phone_replaying_the_experts_tcp_path_reproduces_its_success_on_the_pa
 
 
 def test_gamepad_deltas_are_stored_as_end_effector_actions_at_the_set_speed(tmp_path):
-    steps = 50  # the Panda's LiftPegUpright episode
+    steps = 50  # the person ends it with the right arrow
     k = np.arange(steps)
     deltas = np.stack([np.sin(k / 5), 0.5 * np.cos(k / 7), np.where(k < 25, -0.4, 0.4)], axis=1)
     classes = np.where(k < 10, 2.0, np.where(k < 12, 0.0, 1.0))  # open, then close, then stay
@@ -182,7 +182,7 @@ def test_gamepad_deltas_are_stored_as_end_effector_actions_at_the_set_speed(tmp_
         dict(zip(("delta_x", "delta_y", "delta_z", "gripper"), [*d, c], strict=True))
         for d, c in zip(deltas, classes, strict=True)
     ]
-    devices.SCRIPTS["default"] = devices.Script(reads)
+    devices.SCRIPTS["default"] = devices.Script(reads, keys={steps - 1: "right"})
     assert record(tmp_path, device="kitbench_replay_gamepad", robot="panda", mode="pd_ee_delta_pos") == 0
     data = np.stack(frames(tmp_path)["action"].to_numpy())
     assert data.shape == (steps, 4)

@@ -66,6 +66,7 @@ class TeleopPolicy:
         self.seed: int | None = None
         self.obs: Any = None
         self.last: np.ndarray | None = None
+        self.reads = 0  # the device's values read so far: none yet, and a failure is a device not found
 
     # -- what the recorder asks (`kitbench.teleop.operated.Operated`) ------------------------------------------
     @property
@@ -87,8 +88,12 @@ class TeleopPolicy:
         self.view.open()
         say(f"{self.device_label} connected; {self.keys.help}")
 
+    @property
+    def task_step_limit(self) -> bool:
+        return False  # time is the person's: they end the episode, or success does, or `max_seconds`
+
     def episode_hooks(self) -> list[Hook]:
-        return [TeleopHook(self.paced, self.keys, self.view, self.clipped, self.limited)]
+        return [TeleopHook(self.paced, self.keys, self.view, self.clipped, self.limited, self.options.max_seconds)]
 
     def paced(self) -> Pacer | None:
         """The pacer of the episode about to run (None without real-time pacing)."""
@@ -144,12 +149,26 @@ class TeleopPolicy:
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is gone: one line)
             if self.keys.stopping and self.last is not None:
                 return self._hold()  # escape also lets go of a keyboard device: the episode stops at this step
-            raise KitbenchError(
-                f"teleop:{self.device_label} disconnected while recording seed {self.seed}: {reason(exc)}; the "
-                "episode in flight is discarded and every finished one kept: continue with --resume"
-            ) from None
+            raise self._lost(exc, f"while recording seed {self.seed}", "the episode in flight is discarded and "
+                             "every finished one kept") from None  # fmt: skip
+        self.reads += 1
+        self.buttons()
         self.last = self.servo(self.env, self.mapping.action(self.env, device_action))
         return self.last
+
+    def buttons(self) -> None:
+        """The device's own episode buttons (lerobot's `get_teleop_events`: a gamepad's), as the episode keys."""
+        events = getattr(self.device, "get_teleop_events", None)
+        if events is not None:
+            self.keys.device_events(events())
+
+    def _lost(self, exc: BaseException, when: str, kept: str) -> KitbenchError:
+        """The device failing: not found when it never gave a value (nothing to resume), else disconnected."""
+        if not self.reads:
+            return KitbenchError(f"teleop:{self.device_label}: not found: {reason(exc)}")
+        return KitbenchError(
+            f"teleop:{self.device_label} disconnected {when}: {reason(exc)}; {kept}: continue with --resume"
+        )
 
     def _hold(self) -> np.ndarray:
         """The arm held where the device last put it: a leader's last targets, no end-effector motion."""
@@ -165,12 +184,12 @@ class TeleopPolicy:
 
     def _read(self) -> dict[str, Any]:
         try:
-            return self.device.get_action()
+            read = self.device.get_action()
         except Exception as exc:  # noqa: BLE001  (whatever a driver raises, the device is gone: one line)
-            raise KitbenchError(
-                f"teleop:{self.device_label} disconnected while waiting for the start pose of seed {self.seed}: "
-                f"{reason(exc)}; every finished episode is kept: continue with --resume"
-            ) from None
+            when = f"while waiting for the start pose of seed {self.seed}"
+            raise self._lost(exc, when, "every finished episode is kept") from None
+        self.reads += 1
+        return read
 
     def _align(self, env: KitbenchEnv, mapping: JointMapping) -> None:
         """Wait until the leader is within `align` of the simulated arm's start pose (right arrow: start now;

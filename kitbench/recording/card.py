@@ -153,9 +153,42 @@ def record_command(recording: RecordingInfo, episodes: int) -> str:
         elif value is not False:
             flags += [flag_of(leaf), str(value)]
     if not recording.source:
-        for key, value in (recording.expert_options or {}).items():
-            flags += ["--policy-option", f"{key}={json.dumps(value)}"]
+        for key, value in {**(recording.expert_options or {}), **(recording.teleop_options or {})}.items():
+            flags += ["--policy-option", f"{key}={_option_text(value)}"]
     return shlex.join([*flags, "--out", "<folder>"])
+
+
+def _option_text(value) -> str:
+    """A `--policy-option` value as the flag reads it back (JSON, else text): a port stays `/dev/ttyACM0`."""
+    if isinstance(value, str):
+        try:
+            json.loads(value)
+        except ValueError:
+            return value  # text that reads back as itself
+    return json.dumps(value)
+
+
+def _teleop_note(recording: RecordingInfo, robot: str, fps: int) -> list[str]:
+    """The card's line on a person's episodes: no step limit while recording, the suite's when scored."""
+    if not is_teleop(recording.policy):
+        return []
+    from kitbench.registration import TASKS
+
+    entry = TASKS.get(recording.task)
+    seconds = (recording.teleop_options or {}).get("max_seconds")
+    limit = "no time limit" if seconds is None else f"at most {seconds} s each (`max_seconds`)"
+    scored = ""
+    if entry is not None:
+        steps = entry.env_class.episode_steps(robot)
+        scored = f" ({steps} steps, {steps / fps:g} s)"
+    line = (
+        f"- Time: each episode ran until the person ended it or {recording.settle_steps} steps past success, "
+        f"{limit}; how each ended (`key`, `button`, `success`, `limit`), its values clipped to the joint limits and "
+        f"its steps held to the joint speeds are its `teleop` entry in `{EPISODES_FILE}`. `kitbench eval --policy "
+        f"replay:<this dataset>` scores the episodes under the task's own step limit{scored}: one longer than that "
+        "is scored where it stood at the limit."
+    )
+    return [line]
 
 
 def _variant_note(task: str, robot: str) -> list[str]:
@@ -231,6 +264,7 @@ def card_text(root: Path) -> str:
             f"- Made by: {how}",
             f"- Made again by: `{record_command(recording, len(episodes))}`",
             *_variant_note(recording.task, robot),
+            *_teleop_note(recording, robot, info["fps"]),
             *held,
             *camera_notes(features),
             f"- {files}",

@@ -17,7 +17,7 @@ from kitbench.env_settings import EnvSettings
 from kitbench.envs.modes import camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS
 from kitbench.errors import KitbenchError, one_line
-from kitbench.metadata import ACTION_CONVENTION, RECORDING_FILE, RecordingInfo, expert_options
+from kitbench.metadata import ACTION_CONVENTION, RECORDING_FILE, RecordingInfo, expert_options, teleop_options
 from kitbench.policies.lerobot_policy import parse_option
 from kitbench.recording.features import RGB_STORAGES
 from kitbench.recording.layout import RETIRED_SUFFIX, SHARDS_DIR, beside, journal_root, last_commit
@@ -188,6 +188,7 @@ class RecordConfig:
             rgb_storage=self.output.rgb_storage,
             label=self.policy.label,
             expert_options=expert_options(self.policy.policy, self.policy.policy_options),
+            teleop_options=teleop_options(self.policy.policy, self.policy.policy_options),
             source=None if self.source is None else str(self.source),
             kitbench_version=kitbench.__version__,
             action_convention=ACTION_CONVENTION,
@@ -393,14 +394,16 @@ def _check_output(config: RecordConfig) -> None:
             raise KitbenchError(f"cannot resume {out} with different settings ({detail})")
 
 
-def make_recording_env(config: RecordConfig, render_mode: str | None = None):
+def make_recording_env(config: RecordConfig, render_mode: str | None = None, step_limit: bool = True):
     """The env `config` records in; `render_mode` "rgb_array" for a person's live view of the scene (visual shapes
-    only: the same physics, the same data)."""
-    from kitbench.registration import make_env
+    only: the same physics, the same data); `step_limit` False: without the task's step limit (a person ends the
+    episode)."""
+    from kitbench.registration import NO_STEP_LIMIT, make_env
 
     env = config.env
     return make_env(
         config.task,
+        max_episode_steps=None if step_limit else NO_STEP_LIMIT,
         obs_mode=env.obs_mode,
         control_mode=env.control_mode,
         reward_mode=env.reward_mode,

@@ -184,7 +184,14 @@ class DatasetWriter:
         faults.point("writer.saved")
         self._pending.append(
             EpisodeInfo(
-                index, record.seed, record.success, record.length, record.first_success, record.task, record.config
+                index,
+                record.seed,
+                record.success,
+                record.length,
+                record.first_success,
+                record.task,
+                record.config,
+                record.teleop,
             )
         )
         return index

@@ -82,6 +82,7 @@ class EpisodeJournal:
             "first_success": episode.first_success,
             "config": episode.config,
             "physics_error": episode.physics_error,
+            "teleop": episode.teleop,
             "keys": keys,
         }
         payload: dict[str, Any] = {**arrays, _META: np.array(json.dumps(meta))}
@@ -151,6 +152,7 @@ class EpisodeJournal:
             first_success=meta["first_success"],
             config=meta["config"],
             physics_error=meta["physics_error"],
+            teleop=meta.get("teleop"),
         )
         mcap = self._path(seed, ".mcap")
         return episode, (mcap if mcap.exists() else None)

@@ -44,6 +44,7 @@ class EpisodeRecord:
     physics_error: str | None = None  # the simulation failed at the last step (`info["physics_error"]`)
     rejected: str | None = None  # why the episode is not to be stored although it ran (a conversion that diverged)
     control: Control | None = None  # a person's request that ended it (teleoperation: re-record, stop)
+    teleop: dict | None = None  # a person's episode: how it ended (key, success, limit), clip and rate-limit counts
 
     @property
     def length(self) -> int:
@@ -241,8 +242,9 @@ def run_episode(
         chain.append(Noise(action_noise, noise_phases, policy))
     chain += [SettleAfterSuccess(settle_steps), *hooks]
     try:
-        run([env], [seed], OneEpisode(policy), lambda _: chain)
+        (ran,) = run([env], [seed], OneEpisode(policy), lambda _: chain)
     finally:
         if log is not None:
             log.close()
+    record.teleop = ran.teleop
     return record

@@ -49,7 +49,8 @@ class RecordWork(Work):
         self._policy = make_policy(self.config.policy.policy, options=dict(self.config.policy.policy_options))
         person = operated(self._policy)
         render = person is not None and person.renders
-        self._env = make_recording_env(self.config, render_mode="rgb_array" if render else None)
+        step_limit = person is None or person.task_step_limit
+        self._env = make_recording_env(self.config, render_mode="rgb_array" if render else None, step_limit=step_limit)
         label = self.config.policy.label
         self._labeler = make_policy(label) if label else None
         if person is not None:

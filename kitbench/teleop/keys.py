@@ -11,6 +11,10 @@ from kitbench.rollout import Control
 # key name (as lerobot's listeners name them) -> lerobot's control; lerobot's `init_keyboard_listener` table
 KEYS = {"right": "right", "n": "right", "left": "left", "r": "left", "esc": "esc", "q": "esc"}
 ARROWS = ("right", "left")
+# a device's own episode events (lerobot's `TeleopEvents`; a gamepad's X, Y and A buttons) -> lerobot's control,
+# the first that holds counting (lerobot's gamepad also sets terminate_episode with re-record)
+DEVICE_EVENTS = {"RERECORD_EPISODE": "left", "SUCCESS": "right", "TERMINATE_EPISODE": "esc"}
+BUTTON = "button:"  # how `last_key` names a device's event (`button:success`)
 HELP = "right arrow or n: next episode, left arrow or r: re-record it, Esc or q: stop"
 LETTERS_HELP = "n: next episode, r: re-record it, Esc or q: stop"
 # before an episode, while a leader arm is brought to the start pose
@@ -33,6 +37,7 @@ class EpisodeKeys:
         self.start_help = START_HELP if arrows else LETTERS_START_HELP
         self.events = new_events()
         self.listener = None
+        self.last_key: str | None = None  # the name of the key behind the last control pressed
 
     def start(self) -> None:
         """Listen (pynput where it can capture, else the terminal, else nothing: lerobot's choice)."""
@@ -46,7 +51,22 @@ class EpisodeKeys:
 
         control = self.keys.get(name.lower())
         if control is not None:
+            self.last_key = name.lower()
             apply_recording_control(control, self.events)
+
+    def device_events(self, events: dict) -> None:
+        """A device's own episode buttons (lerobot's `TeleopEvents`: a gamepad's X, Y, A), as the keys: re-record
+        (X) discards the episode, success (Y) ends it (kept), terminate (A: failure) ends it and stops the
+        recording."""
+        from lerobot.teleoperators.utils import TeleopEvents
+        from lerobot.utils.keyboard_input import apply_recording_control
+
+        for event, control in DEVICE_EVENTS.items():
+            member = getattr(TeleopEvents, event)
+            if events.get(member) or events.get(member.value):
+                self.last_key = f"{BUTTON}{member.value}"
+                apply_recording_control(control, self.events)
+                return
 
     @property
     def stopping(self) -> bool:

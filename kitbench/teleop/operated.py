@@ -19,6 +19,11 @@ class Operated(Protocol):
     def renders(self) -> bool:
         """Whether its env must render (a live view of the scene)."""
 
+    @property
+    def task_step_limit(self) -> bool:
+        """Whether its episodes end at the task's step limit (False: when the person ends them, at success, or at
+        its own limit)."""
+
     def connect(self) -> None:
         """Open the device, the keys and the view (one line naming the device when it is missing)."""
 

@@ -35,6 +35,9 @@ class TeleopOptions:
     # A leader arm: each episode starts once every joint is within this many degrees of the simulated arm's
     # (0: at once).
     align: float = 10.0
+    # The longest an episode may run, seconds (None: until the person ends it or success does, as LeIsaac turns the
+    # time-out off while a person drives); the task's own step limit does not apply to a person's episodes.
+    max_seconds: float | None = None
 
     @property
     def save_path(self) -> Path | None:
@@ -60,6 +63,8 @@ def split_options(options: dict[str, Any]) -> tuple[TeleopOptions, dict[str, Any
         raise KitbenchError(f"unknown teleop option display={display!r}; valid choices: {', '.join(DISPLAYS)}")
     if not isinstance(own.get("realtime", True), bool):
         raise KitbenchError(f"teleop option realtime must be true or false, got {own['realtime']!r}")
+    if own.get("max_seconds") is not None:
+        _number("max_seconds", own["max_seconds"], 1e-9)
     for name in ("ee_speed", "phone_scale", "gripper_speed"):
         if name in own:
             _number(name, own[name], 1e-9)

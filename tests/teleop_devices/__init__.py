@@ -21,6 +21,7 @@ class Script:
     keys: dict[int, str] = field(default_factory=dict)  # read index -> key pressed during that read
     fail_at: int | None = None  # the read that fails as an unplugged serial port does
     missing: bool = False  # connect() fails: no device on the port
+    events: dict[int, str] = field(default_factory=dict)  # read index -> lerobot TeleopEvents member pressed then
     position: int = 0  # reads made
 
 
@@ -107,10 +108,22 @@ class ReplayArm(_Replay):
 
 
 class ReplayGamepad(_Replay):
-    """A gamepad: position deltas and lerobot's gripper classes, declared as lerobot's gamepad declares them."""
+    """A gamepad: position deltas and lerobot's gripper classes, declared as lerobot's gamepad declares them, and its
+    episode buttons as lerobot's gamepad reports them (`get_teleop_events`: X sets re-record and terminate)."""
 
     config_class = ReplayGamepadConfig
     name = "kitbench_replay_gamepad"
+
+    def get_teleop_events(self) -> dict:
+        from lerobot.teleoperators.utils import TeleopEvents
+
+        pressed = self.script.events.get(self.script.position - 1)
+        events = dict.fromkeys(TeleopEvents, False)
+        if pressed is not None:
+            events[TeleopEvents[pressed]] = True
+            if pressed == "RERECORD_EPISODE":
+                events[TeleopEvents.TERMINATE_EPISODE] = True
+        return events
 
     @property
     def action_features(self) -> dict:
