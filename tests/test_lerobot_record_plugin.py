@@ -151,8 +151,10 @@ def test_lerobot_record_stores_each_episodes_seed_and_outcome(recorded):
     assert [e.length for e in episodes] == data.groupby("episode_index").size().tolist()
     assert all(e.success is False and e.first_success is None for e in episodes)  # the leader never grasps
     assert episodes[0].config["control_mode"] == "pd_joint_pos"
-    assert episodes[0].config["rate_limited_steps"] == 8  # the 60-degree jump: 4 steps up, 4 back
-    assert episodes[1].config["rate_limited_steps"] == 0
+    assert [e.teleop["ended"] for e in episodes] == ["limit", "limit"]  # their time ran out
+    assert episodes[0].teleop["rate_limited"] == 8  # the 60-degree jump: 4 steps up, 4 back
+    assert episodes[1].teleop["rate_limited"] == 0
+    assert [e.teleop["clipped"] for e in episodes] == [0, 0]
 
 
 def test_lerobot_record_resets_at_its_boundaries_never_inside_an_episode(recorded, poses):
@@ -205,15 +207,18 @@ def test_a_leader_jump_reaches_the_follower_over_the_steps_the_servo_needs_count
 
 
 def test_a_re_recorded_episode_meets_its_seed_again(tmp_path, poses, monkeypatch):
-    """Left arrow during episode 0: LeRobot drops it and records episode 0 again, on seed 0 again."""
-    start = {**RECORD_OVERRIDES, "dataset.num_episodes": "1", "dataset.episode_time_s": "1"}
+    """Left arrow during episode 0: LeRobot drops it, and records episode 0 again after its reset phase (which the
+    right arrow cuts short), on seed 0 again; the right arrow ends that one early."""
+    start = {**RECORD_OVERRIDES, "dataset.num_episodes": "1", "dataset.episode_time_s": "2"}
     argv = replaced(doc_commands()["lerobot-record"], {**start, "dataset.root": str(tmp_path / "sim")})
     with plugin_lines() as lines:
-        play([*argv, STATE_ONLY], [leader(poses[0])], monkeypatch, keys={5: "left"})
+        play([*argv, STATE_ONLY], [leader(poses[0])], monkeypatch, keys={5: "left", 12: "right", 20: "right"})
     started = [line.split(": ", 1)[1] for line in lines if ": episode 0 on seed" in line]
     assert started == ["episode 0 on seed 0", "episode 0 on seed 0"]
-    assert [(e.episode_index, e.seed) for e in read_episodes(tmp_path / "sim")] == [(0, 0)]
-    assert len(frames(tmp_path / "sim")) == read_episodes(tmp_path / "sim")[0].length  # the kept one's frames
+    (kept,) = read_episodes(tmp_path / "sim")
+    assert (kept.episode_index, kept.seed) == (0, 0)
+    assert kept.teleop is not None and (kept.teleop["ended"], kept.teleop["key"]) == ("key", "right")
+    assert len(frames(tmp_path / "sim")) == kept.length < 20  # the kept one's frames, fewer than its second
 
 
 def test_the_documented_lerobot_teleoperate_line_runs(poses, monkeypatch):

@@ -1,5 +1,6 @@
-"""What each episode lerobot-record stores on the simulated arm was: its seed, whether and when it succeeded, its
-rate-limited steps, in kitbench's own episode file beside LeRobot's metadata (`meta/kitbench_episodes.jsonl`, one
+"""What each episode lerobot-record stores on the simulated arm was: its seed, whether and when it succeeded, how it
+ended, its clipped values and rate-limited steps (as a person's episodes in `kitbench record` say them), in
+kitbench's own episode file beside LeRobot's metadata (`meta/kitbench_episodes.jsonl`, one
 `kitbench.metadata.EpisodeInfo` line per saved episode, read back by `kitbench.metadata.read_episodes`).
 
 LeRobot has no clean place for them: lerobot-record turns every float a robot observes into a column of
@@ -27,18 +28,22 @@ class Take:
     steps: int = 0  # simulation control steps
     first_success: int | None = None  # the frame whose action led to the first success
     success_at_end: bool = False
+    clipped: int = 0  # goal values beyond the simulated joints' ranges, clipped to them
     limited_steps: int = 0  # steps where a joint's speed limit held the arm back
 
-    def info(self) -> EpisodeInfo:
-        """Its line (the instruction is LeRobot's, read from its task index)."""
-        facts = {"success_at_end": self.success_at_end, "steps": self.steps, "rate_limited_steps": self.limited_steps}
+    def info(self, ended: dict[str, str]) -> EpisodeInfo:
+        """Its line, the episode having ended as `ended` says (the instruction is LeRobot's, read from its task
+        index)."""
+        person = {**ended, "clipped": self.clipped, "rate_limited": self.limited_steps}
+        person |= {"success_at_end": self.success_at_end, "sim_steps": self.steps}
         return EpisodeInfo(
             episode_index=self.index,
             seed=self.seed,
             success=self.first_success is not None,
             length=self.frames,
             first_success=self.first_success,
-            config={**self.config, **facts},
+            config=self.config,
+            teleop=person,
         )
 
 

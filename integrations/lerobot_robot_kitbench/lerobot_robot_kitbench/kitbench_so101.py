@@ -220,6 +220,8 @@ class KitbenchSO101(Robot):
         for name, value in list(goal.items()):
             i = names.index(name)
             goal[name] = float(np.clip(value, space.low[i], space.high[i]))
+            if self.take is not None and goal[name] != value:
+                self.take.clipped += 1
         held = {name: self.goal[name] for name in goal}
         if self.phase == RESET:
             self._at_start_pose(env, wanted)  # the lines say which joints are off; the scene waits for the episode
@@ -245,14 +247,15 @@ class KitbenchSO101(Robot):
         self.take = Take(index, seed, {"control_mode": MODE, "obs_mode": self.config.obs_mode, **env.episode_config()})
         logger.info("%s: episode %d on seed %d", self, index, seed)
 
-    def end_episode(self) -> None:
+    def end_episode(self, ended: dict[str, str]) -> None:
         take, self.take = self.take, None
         if take is not None and self.file is not None:
-            self.file.ended(take.info())
+            self.file.ended(take.info(ended))
             outcome = f"success at frame {take.first_success}" if take.first_success is not None else "no success"
+            how = f"key {ended['key']}" if "key" in ended else ended["ended"]
             logger.info(
-                "%s: episode %d (seed %d): %s, %d frames, %d rate-limited steps",
-                *(self, take.index, take.seed, outcome, take.frames, take.limited_steps),
+                "%s: episode %d (seed %d): %s, %d frames, ended by %s, %d values clipped, %d rate-limited steps",
+                *(self, take.index, take.seed, outcome, take.frames, how, take.clipped, take.limited_steps),
             )
 
     def begin_reset(self, rerecord: bool) -> None:

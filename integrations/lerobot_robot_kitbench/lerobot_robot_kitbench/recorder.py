@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import time
 from pathlib import Path
 from typing import Any, Protocol, cast
 
@@ -28,8 +29,9 @@ class Episodic(Protocol):
     def begin_episode(self, index: int, root: Path, saved: Any) -> None:
         """Dataset episode `index` starts (`root`: the dataset's folder; `saved()`: episodes saved so far)."""
 
-    def end_episode(self) -> None:
-        """The episode's loop ended (saved or re-recorded: told by the next `begin_episode` or `disconnect`)."""
+    def end_episode(self, ended: dict[str, str]) -> None:
+        """The episode's loop ended, as `ended` says (`{"ended": "limit"}`: its time ran out; `{"ended": "key",
+        "key": "right" | "left" | "esc"}`); saved or re-recorded: told by the next `begin_episode` or `disconnect`."""
 
     def begin_reset(self, rerecord: bool) -> None:
         """lerobot's reset phase starts; `rerecord`: the episode that ended is recorded again."""
@@ -60,10 +62,23 @@ def _episodic(loop, kind: type):
             robot.begin_reset(rerecord=bool(events.get("rerecord_episode")))
             return loop(*args, **kwargs)
         robot.begin_episode(dataset.num_episodes, Path(dataset.root), lambda: dataset.num_episodes)
+        start = time.perf_counter()
         try:
             return loop(*args, **kwargs)
         finally:
-            robot.end_episode()
+            robot.end_episode(_ended(events, time.perf_counter() - start, kwargs.get("control_time_s")))
 
     setattr(record_loop, WRAPPED, True)
     return record_loop
+
+
+def _ended(events: dict, seconds: float, limit: float | None) -> dict[str, str]:
+    """How an episode's loop ended: the keys leave their flags set (but the right arrow's, which the loop clears
+    as it leaves early), else it ended at its time."""
+    if events.get("stop_recording"):
+        return {"ended": "key", "key": "esc"}
+    if events.get("rerecord_episode"):
+        return {"ended": "key", "key": "left"}
+    if limit is not None and seconds < limit:
+        return {"ended": "key", "key": "right"}
+    return {"ended": "limit"}
