@@ -17,6 +17,7 @@ from kitbench.envs.features import IMAGES, STATE, action_names, observation_feat
 from kitbench.envs.interface import KitbenchEnv
 from kitbench.envs.modalities import texture_of
 from kitbench.errors import KitbenchError
+from kitbench.teleop import layout
 
 DISPLAYS = ("none", "rerun", "sapien")
 SCENE = f"{IMAGES}scene"  # the third-person view, beside the cameras
@@ -100,8 +101,11 @@ class RerunView:
         import rerun as rr
 
         self.camera = _scene_camera(env, self.scene_size) if self.scene_size else None
-        self.state_names = list(observation_features(env)[STATE]["names"])
+        features = observation_features(env)
+        self.state_names = list(features[STATE]["names"])
         self.action_names = action_names(env)
+        images = [name for name in features if (t := texture_of(name, IMAGES)) is not None and t.name in SHOWN_TEXTURES]
+        layout.send(self.state_names, self.action_names, images + ([SCENE] if self.camera is not None else []))
         rr.set_time("frame", sequence=self.frame)
         rr.log("episode", rr.TextLog(f"{env.task_id} seed {seed}"))
 
