@@ -107,6 +107,15 @@ def _compare(flags: dict) -> int:
     return 1 if flags.get("fail_if_worse") and comparison.verdict == "worse" else 0
 
 
+def _race(flags: dict) -> int:
+    from kitbench.evaluation.race import race_config, run_race, summary_lines
+
+    config = race_config(flags)
+    race = run_race(config)
+    print("\n".join(summary_lines(race, config.settings.out)))
+    return 0
+
+
 def _reproduce(flags: dict) -> int:
     from kitbench.config.declare import build
     from kitbench.reproduce import ReproduceConfig, reproduce
@@ -185,6 +194,16 @@ COMMANDS = {
         "compare two eval reports of one suite: success difference with its 95%% CI and p-value, and a verdict",
         _compare,
         (("kitbench.evaluation.compare:CompareSettings", None),),
+    ),
+    "race": Command(
+        "score two policies on one suite's seeds in order until an anytime-valid paired test decides which is "
+        "better (or the suite runs out): the episodes used, the decision and the difference's interval",
+        _race,
+        (
+            ("kitbench.evaluation.race:RaceSettings", None),
+            ("kitbench.evaluation.config:ScoredPolicy", ("device", "batch_size")),
+            ("kitbench.engine.config:ExecutorConfig", None),
+        ),
     ),
 }
 
