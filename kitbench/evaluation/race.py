@@ -12,6 +12,7 @@ decision.
 from __future__ import annotations
 
 import json
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -178,7 +179,9 @@ def _finished_report(config: EvalConfig) -> dict | None:
     return None if report.get("partial") or report["episodes"] != len(config.suite.seeds) else report
 
 
-def _outcomes(config: EvalConfig, seeds: int, begun: bool, read: bool, progress: bool) -> tuple[list[bool], bool]:
+def _outcomes(
+    config: EvalConfig, seeds: int, begun: bool, read: bool, progress: bool, engine=None
+) -> tuple[list[bool], bool]:
     """The side's headline outcomes on the suite's first `seeds` seeds, and whether its report says them. `read`:
     a resumed race may read them back from the journal (a look replayed); else `kitbench eval --stop-after seeds`
     scores what is missing and writes the report (`begun`: this race has started the side's evaluation)."""
@@ -191,22 +194,31 @@ def _outcomes(config: EvalConfig, seeds: int, begun: bool, read: bool, progress:
         held = journaled_results(config)
         if len(held) >= seeds:
             return [r.success for r in held[:seeds]], False
-    report = run_eval(config.replace(stop_after=seeds, resume=begun), progress=progress)
+    report = run_eval(config.replace(stop_after=seeds, resume=begun), progress=progress, engine=engine)
     return [e["success"] for e in report["per_episode"]], True
 
 
 def run_race(config: RaceConfig, progress: bool = True, say=print) -> dict:
     """Run the race (see the module docstring); returns race.json's content. `say`: where each look's line goes."""
-    from kitbench.evaluation.runner import validate
+    from kitbench.evaluation.runner import eval_engine, validate
 
     s = config.settings
-    out = Path(s.out)
     now = _race_settings(config)
     _check_folder(config, now)
-    sides = config.sides
-    for side in sides.values():  # both policies load and fit the suite before anything is written
+    engines = {}
+    for name, side in config.sides.items():  # both policies load and fit the suite before anything is written
         if not (s.resume and _finished_report(side) is not None):
-            validate(side.replace(resume=s.resume, overwrite=s.overwrite))
+            engines[name] = eval_engine(side, validate(side.replace(resume=s.resume, overwrite=s.overwrite)), s.block)
+    with ExitStack() as running:  # each side's workers and policy stay up from look to look
+        for engine in engines.values():
+            running.enter_context(engine)
+        return _race(config, now, engines, progress, say)
+
+
+def _race(config: RaceConfig, now: dict, engines: dict, progress: bool, say) -> dict:
+    s = config.settings
+    out = Path(s.out)
+    sides = config.sides
     if s.overwrite:
         (out / RACE_JSON).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
@@ -228,7 +240,8 @@ def run_race(config: RaceConfig, progress: bool = True, say=print) -> dict:
         for name, side in sides.items():
             if not begun[name]:
                 side = side.replace(overwrite=s.overwrite)
-            outcomes[name], reported[name] = _outcomes(side, seeds, begun[name], s.resume, progress)
+            engine = engines.get(name)
+            outcomes[name], reported[name] = _outcomes(side, seeds, begun[name], s.resume, progress, engine)
             begun[name] = True
         a, b = outcomes["a"], outcomes["b"]
         a_only = sum(x and not y for x, y in zip(a, b, strict=True))
@@ -237,7 +250,7 @@ def run_race(config: RaceConfig, progress: bool = True, say=print) -> dict:
         final = assessment.decided or seeds == total
         for name, side in sides.items():
             if final and not reported[name]:  # a replayed last look: its reports are written now
-                _outcomes(side, seeds, True, False, progress)
+                _outcomes(side, seeds, True, False, progress, engines.get(name))
         race["looks"].append({**assessment.to_dict(), "a_successes": sum(a), "b_successes": sum(b)})
         say(look_line(race["looks"][-1]))
         if final:
@@ -269,6 +282,11 @@ def look_line(look: dict) -> str:
     )
 
 
+def _label(side: dict) -> str:
+    options = ", ".join(f"{k}={v}" for k, v in side["options"].items())
+    return f"{side['policy']} ({options})" if options else side["policy"]
+
+
 def summary_lines(race: dict, out: Path) -> list[str]:
     """What `kitbench race` prints at the end."""
     low, high = race["interval"]
@@ -277,7 +295,7 @@ def summary_lines(race: dict, out: Path) -> list[str]:
     said = decision if decision != sequential.UNDECIDED else f"{decision} at alpha {alpha:g}"
     return [
         f"episodes used: {race['episodes']} of the suite's {race['suite_episodes']} seeds, per policy",
-        f"decision: {said} (A {race['settings']['a']['policy']}, B {race['settings']['b']['policy']})",
+        f"decision: {said} (A {_label(race['settings']['a'])}, B {_label(race['settings']['b'])})",
         (
             f"success: A {race['success']['a']['rate']:.1%}, B {race['success']['b']['rate']:.1%}; A - B "
             f"{race['difference']:+.1%} (anytime-valid {1 - alpha:.0%} interval {low:+.1%} to {high:+.1%})"

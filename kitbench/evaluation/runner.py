@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, replace
 from itertools import takewhile
 from pathlib import Path
@@ -299,11 +300,20 @@ def _seeds(job: int | Trial | Batch | Save) -> tuple[int, ...]:
     return (job if isinstance(job, int) else job.seed,)
 
 
-def run_eval(config: EvalConfig, progress: bool = True) -> dict:
+def eval_engine(config: EvalConfig, plan: Plan, jobs: int) -> RolloutEngine:
+    """The engine an evaluation scores on (not started): the plan's suite and device, the policy with its options,
+    on the executor `config` names with no more workers than `jobs`."""
+    options = dict(config.policy.policy_options)
+    work = EvalWork(plan.suite, config.policy.policy, plan.device, options)
+    return RolloutEngine(make_executor(config.executor, max(1, jobs)), work)
+
+
+def run_eval(config: EvalConfig, progress: bool = True, engine: RolloutEngine | None = None) -> dict:
     """Score the policy on every seed (each finished job journaled, so that `resume` continues a run that was
     stopped), write the report (report.json, report.md, plots), then make the videos and write the report again
     with them. A failed video pass leaves the report, with `output.video_error` saying why, and returns
-    normally."""
+    normally. `engine`: a started `eval_engine` of this config to score on, left running (a race scores every
+    look on one); else one is started for the run and stopped after it."""
     wall_start = time.monotonic()
     plan = validate(config)
     suite, timestep, fps, device = plan.suite, plan.timestep, plan.fps, plan.device
@@ -315,11 +325,11 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     if stop_after is not None:  # the first seeds now, the journal kept for --resume to go on from
         jobs = jobs[: _first_jobs(stop_after, batch_size)]
     journaled = plan.journaled[: len(jobs)]  # a journal may hold more than this run reports on: they stay in it
-    executor = make_executor(config.executor, max(1, len(jobs) - len(journaled)))
     journal = EvalJournal(out)
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
     options = dict(config.policy.policy_options)
-    with RolloutEngine(executor, EvalWork(suite, config.policy.policy, device, options)) as engine:
+    own = eval_engine(config, plan, len(jobs) - len(journaled)) if engine is None else nullcontext(engine)
+    with own as engine:
         if plan.resume:
             journal.open(len(plan.journaled))  # every whole line kept, a torn one cut off
         else:

@@ -6,7 +6,7 @@ the other failed) carry the difference: under "no difference" each favours A wit
 seeds' difficulty, so the number favouring A is Binomial(discordant, 1/2). Against it stands Robbins' mixture
 likelihood ratio (Robbins 1970, "Statistical methods related to the law of the iterated logarithm"; the
 beta-binomial mixture of Howard, Ramdas, McAuliffe and Sekhon 2021, "Time-uniform, nonparametric, nonasymptotic
-confidence sequences", Ann. Statist. 49(2):1055-1080, section 3 and Example 5):
+confidence sequences", Ann. Statist. 49(2):1055-1080):
 
     M_n(theta) = integral of prod_i q^x_i (1 - q)^(1 - x_i) dBeta(q; a, a)  /  prod_i theta^x_i (1 - theta)^(1 - x_i)
                = B(a + s, a + n - s) / B(a, a) / (theta^s (1 - theta)^(n - s))
@@ -17,7 +17,7 @@ whatever looks and whatever the stopping rule. The test decides when M_n(1/2) >=
 the side s - n/2 is on, and a decision for the wrong side also has probability at most alpha_theta (the mixture
 over the wrong half of the prior is a supermartingale when the truth is on the other side).
 
-{theta : M_n(theta) < 1/alpha} is a confidence sequence for theta, the chance that a discordant seed favours A,
+{theta : M_n(theta) < 1/alpha_theta} is a confidence sequence for theta, the chance that a discordant seed favours A,
 valid at every n at once; the test decides exactly when it leaves out 1/2. The success difference is
 rate(A) - rate(B) = D (2 theta - 1), D the chance that a seed is discordant, which gets a confidence sequence of
 its own from the same mixture over all the seeds (a Beta(1/2, 1/2) prior, as its value is anywhere in [0, 1]).
@@ -26,9 +26,9 @@ decision), the rest to D, so the interval of the difference leaves out 0 exactly
 
 The prior Beta(a, a) on theta decides which differences are found soonest: a small `a` puts its mass near 0 and 1,
 where theta sits when one policy rarely wins a seed the other loses (the same seed is hard for both), a large one
-near 1/2, where it sits for small differences between independent outcomes. The uniform prior (a = 1) needed the
-fewest seeds over the simulated cells with the most power (`bench/sequential_sim.py --priors`, the table in
-docs/evaluation.md)."""
+near 1/2, where it sits for small differences between independent outcomes. The uniform prior (a = 1) needed
+nearly the fewest seeds over the simulated cells at a 15-point difference (a mean median of 96.0, against 95.3 for
+a = 1/2) with more power (88.8% against 87.2%; `bench/sequential_sim.py --priors`, docs/evaluation.md)."""
 
 from __future__ import annotations
 
