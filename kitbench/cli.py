@@ -107,18 +107,6 @@ def _compare(flags: dict) -> int:
     return 1 if flags.get("fail_if_worse") and comparison.verdict == "worse" else 0
 
 
-def _select(flags: dict) -> int:
-    from kitbench.evaluation.select import run_select
-
-    return run_select(flags)
-
-
-def _sweep(flags: dict) -> int:
-    from kitbench.evaluation.sweep import run_sweep
-
-    return run_sweep(flags)
-
-
 def _reproduce(flags: dict) -> int:
     from kitbench.config.declare import build
     from kitbench.reproduce import ReproduceConfig, reproduce
@@ -148,7 +136,7 @@ CONVERT_FLAGS = ("obs_mode", "control_mode", "pointcloud_points", "camera_size",
 @dataclass(frozen=True)
 class Command:
     help: str
-    run: Callable[[dict], int]
+    run: Callable[[dict], int] | str  # or "module:function", imported when the command runs
     settings: tuple[tuple[str, tuple[str, ...] | None], ...] = ()  # (config "module:Class", only these or all)
     skip: tuple[str, ...] = ()
 
@@ -200,20 +188,30 @@ COMMANDS = {
     ),
     "select": Command(
         "score each checkpoint of a lerobot-train run on a validation suite: success against step, and the best",
-        _select,
+        "kitbench.evaluation.select:run_select",
         (("kitbench.evaluation.select:SelectSettings", None),),
         skip=("seed", "policy", "save_dataset"),
     ),
     "sweep": Command(
         "score a policy over a grid of execution settings (n_action_steps, ensembling, action delay) on one suite",
-        _sweep,
+        "kitbench.evaluation.sweep:run_sweep",
         (("kitbench.evaluation.sweep:SweepSettings", None),),
         skip=("seed", "save_dataset"),
+    ),
+    "race": Command(
+        "score two policies on one suite's seeds in order until an anytime-valid paired test decides which is "
+        "better (or the suite runs out): the episodes used, the decision and the difference's interval",
+        "kitbench.evaluation.race:main",
+        (
+            ("kitbench.evaluation.race:RaceSettings", None),
+            ("kitbench.evaluation.config:ScoredPolicy", ("device", "batch_size")),
+            ("kitbench.engine.config:ExecutorConfig", None),
+        ),
     ),
 }
 
 
-def _config(path: str) -> type:
+def _imported(path: str) -> Any:
     import importlib
 
     module, _, name = path.partition(":")
@@ -227,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, command in COMMANDS.items():
         command_parser = sub.add_parser(name, help=command.help)
         for config, only in command.settings:
-            add_flags(command_parser, _config(config), skip=command.skip, only=only)
+            add_flags(command_parser, _imported(config), skip=command.skip, only=only)
     return parser
 
 
@@ -238,8 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         faults.arm()
         for config, only in command.settings:
-            flags.update({k: v for k, v in given(_config(config), args).items() if only is None or k in only})
-        return command.run(flags)
+            flags.update({k: v for k, v in given(_imported(config), args).items() if only is None or k in only})
+        run = _imported(command.run) if isinstance(command.run, str) else command.run
+        return run(flags)
     except KitbenchError as exc:
         print(f"kitbench {args.command}: error: {exc}", file=sys.stderr)
         return 2

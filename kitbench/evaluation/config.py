@@ -70,6 +70,9 @@ class ReportSettings:
     videos: int = setting(0, check=non_negative_int)
     # Also store the scored episodes as a LeRobot dataset in DIR (frames, actions, rewards, a dataset card).
     save_dataset: Path | None = setting(None, metavar="DIR")
+    # Score the suite's first N seeds only for now: their report is written and the journal kept, so that
+    # --resume (with a larger --stop-after, or none) scores on where it stopped.
+    stop_after: int | None = setting(None, check=optional(positive_int), metavar="N")
 
 
 @dataclass

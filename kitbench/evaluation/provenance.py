@@ -221,11 +221,19 @@ def source() -> dict | None:
 
 
 def command_line() -> str:
-    """The command that makes the report from scratch: this one, less `--resume`, with kitbench's own entry point
-    (`kitbench`, `python -m kitbench.cli`) named `kitbench`."""
+    """The command that makes the report from scratch: this one, less `--resume` and `--stop-after N` (how far a
+    run goes now, not what it scores), with kitbench's own entry point (`kitbench`, `python -m kitbench.cli`)
+    named `kitbench`."""
     program = Path(sys.argv[0])
     ours = program.name == "kitbench" or program.resolve() == Path(kitbench.__file__).resolve().parent / "cli.py"
-    return shlex.join(["kitbench" if ours else sys.argv[0], *(a for a in sys.argv[1:] if a != "--resume")])
+    kept: list[str] = []
+    args = iter(sys.argv[1:])
+    for arg in args:
+        if arg == "--stop-after":
+            next(args, None)
+        elif arg != "--resume" and not arg.startswith("--stop-after="):
+            kept.append(arg)
+    return shlex.join(["kitbench" if ours else sys.argv[0], *kept])
 
 
 def provenance(

@@ -331,6 +331,17 @@ def markdown(report: dict) -> str:
         "",
         *(
             [
+                (
+                    f"Partial: the first {report['partial']['episodes']} of the suite's "
+                    f"{report['partial']['suite_episodes']} seeds (the run stopped there; `--resume` scores on)."
+                ),
+                "",
+            ]
+            if report.get("partial")
+            else []
+        ),
+        *(
+            [
                 f"Policy options for this run: {', '.join(f'`{k}={v}`' for k, v in report['policy_options'].items())}.",
                 "",
             ]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, replace
 from itertools import takewhile
 from pathlib import Path
@@ -164,6 +165,7 @@ def validate(config: EvalConfig) -> Plan:
     from kitbench.policies.registry import make_policy
 
     config.validate()
+    _check_stop_after(config)
     device = resolve_device(config.policy.device)
     check_out_folder(config.out, config.output.overwrite, config.output.resume)
     journal = EvalJournal(config.out)
@@ -210,6 +212,45 @@ def validate(config: EvalConfig) -> Plan:
 
 def _saving(config: EvalConfig) -> bool:
     return config.output.save_dataset is not None
+
+
+def _check_stop_after(config: EvalConfig) -> None:
+    """`--stop-after` cuts the journal's job list at a seed: a robustness suite's jobs run every seed nominal first,
+    and a dataset is written once, whole."""
+    if _stop_after(config) is None:
+        return
+    if config.suite.perturbations:
+        raise KitbenchError(
+            f"--stop-after {config.output.stop_after} scores a prefix of the seeds; suite {config.suite.name} is a "
+            "robustness suite, whose conditions run after every nominal seed: drop --stop-after"
+        )
+    if _saving(config):
+        raise KitbenchError(
+            f"--stop-after {config.output.stop_after} leaves the run open and --save-dataset writes its dataset "
+            "once, at the end: drop one of them"
+        )
+
+
+def _stop_after(config: EvalConfig) -> int | None:
+    """How many of the suite's seeds this run scores, when fewer than all of them."""
+    limit = config.output.stop_after
+    return limit if limit is not None and limit < len(config.suite.seeds) else None
+
+
+def journaled_results(config: EvalConfig) -> list[EpisodeResult]:
+    """The nominal episodes the journal in `config.out` holds whole, in seed order (none without a journal):
+    what an interrupted run has scored, read without running anything."""
+    journal = EvalJournal(config.out)
+    if journal.settings() is None:
+        return []
+    jobs = _jobs(config.suite, config.policy.batch_size, saving=_saving(config))
+    done = journal.read([_seeds(job) for job in jobs])
+    return [r for job, scored in zip(jobs, done, strict=False) if _condition(job) is None for r in scored]
+
+
+def _first_jobs(seeds: int, batch_size: int) -> int:
+    """How many jobs hold the first `seeds` seeds of a suite without perturbations (a batch: `batch_size` seeds)."""
+    return -(-seeds // batch_size)
 
 
 def _resume_settings(config: EvalConfig, suite: Suite, found: dict) -> dict:
@@ -260,11 +301,20 @@ def _seeds(job: int | Trial | Batch | Save) -> tuple[int, ...]:
     return (job if isinstance(job, int) else job.seed,)
 
 
-def run_eval(config: EvalConfig, progress: bool = True) -> dict:
+def eval_engine(config: EvalConfig, plan: Plan, jobs: int) -> RolloutEngine:
+    """The engine an evaluation scores on (not started): the plan's suite and device, the policy with its options,
+    on the executor `config` names with no more workers than `jobs`."""
+    options = dict(config.policy.policy_options)
+    work = EvalWork(plan.suite, config.policy.policy, plan.device, options, config.policy.action_delay)
+    return RolloutEngine(make_executor(config.executor, max(1, jobs)), work)
+
+
+def run_eval(config: EvalConfig, progress: bool = True, engine: RolloutEngine | None = None) -> dict:
     """Score the policy on every seed (each finished job journaled, so that `resume` continues a run that was
     stopped), write the report (report.json, report.md, plots), then make the videos and write the report again
     with them. A failed video pass leaves the report, with `output.video_error` saying why, and returns
-    normally."""
+    normally. `engine`: a started `eval_engine` of this config to score on, left running (a race scores every
+    look on one); else one is started for the run and stopped after it."""
     wall_start = time.monotonic()
     plan = validate(config)
     suite, timestep, fps, device = plan.suite, plan.timestep, plan.fps, plan.device
@@ -272,14 +322,17 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
     start = time.monotonic()
     batch_size = config.policy.batch_size
     jobs = _jobs(suite, batch_size, saving=_saving(config))
-    executor = make_executor(config.executor, max(1, len(jobs) - len(plan.journaled)))
+    stop_after = _stop_after(config)
+    if stop_after is not None:  # the first seeds now, the journal kept for --resume to go on from
+        jobs = jobs[: _first_jobs(stop_after, batch_size)]
+    journaled = plan.journaled[: len(jobs)]  # a journal may hold more than this run reports on: they stay in it
     journal = EvalJournal(out)
     # the workers start before the report folder is touched: a run whose workers cannot start changes nothing
     options = dict(config.policy.policy_options)
-    work = EvalWork(suite, config.policy.policy, device, options, config.policy.action_delay)
-    with RolloutEngine(executor, work) as engine:
+    own = eval_engine(config, plan, len(jobs) - len(journaled)) if engine is None else nullcontext(engine)
+    with own as engine:
         if plan.resume:
-            journal.open(len(plan.journaled))
+            journal.open(len(plan.journaled))  # every whole line kept, a torn one cut off
         else:
             out.mkdir(parents=True, exist_ok=True)
             for stale in (REPORT_JSON, REPORT_MD):
@@ -290,7 +343,7 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             journal.open(0)
             faults.point("eval.started")
         try:
-            results, perturbed, episodes = _score(engine, suite, jobs, plan.journaled, journal, progress)
+            results, perturbed, episodes = _score(engine, suite, jobs, journaled, journal, progress)
         except ClusterLost as exc:
             raise KitbenchError(
                 f"{exc}; the episodes scored so far are kept: continue with --resume (the same command, on any "
@@ -306,7 +359,11 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
         if config.output.save_dataset is not None:
             _write_dataset(config, suite, episodes)
         scored = time.monotonic()
-        report = _write_report(suite, config.policy.policy, results, timestep, out, perturbed, options)
+        reported_suite = suite if stop_after is None else suite.first(stop_after)
+        results = results[: len(reported_suite.seeds)]  # a batch may run past the seeds asked for
+        report = _write_report(reported_suite, config.policy.policy, results, timestep, out, perturbed, options)
+        if stop_after is not None:
+            report["partial"] = {"episodes": stop_after, "suite_episodes": len(suite.seeds)}
         report["provenance"] = plan.provenance
         reported = time.monotonic()
         # Wall time from the call to the report, and its parts: checking the setup (loading the policy, building
@@ -324,7 +381,7 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             "executor": config.executor.executor,
             "batch_size": batch_size,
             "device": device,
-            "resumed_episodes": sum(len(r) for r in plan.journaled),
+            "resumed_episodes": sum(len(r) for r in journaled),
             "episodes_per_minute": 60.0 * len(results) / max(reported - wall_start, 1e-9),
         }
         _save(report, out)
@@ -339,8 +396,9 @@ def run_eval(config: EvalConfig, progress: bool = True) -> dict:
             report["timing"]["video_seconds"] = now - reported
             report["timing"]["seconds"] = now - wall_start
             _save(report, out)
-        faults.point("eval.finishing")
-        journal.remove()
+        if stop_after is None:
+            faults.point("eval.finishing")
+            journal.remove()
     return report
 
 
@@ -382,7 +440,7 @@ def _score(
     if progress:
         from kitbench.progress import progress as progress_bar
 
-        bar = progress_bar(len(suite.seeds) * len(suite.conditions), f"eval {suite.task}")
+        bar = progress_bar(sum(len(_seeds(job)) for job in jobs), f"eval {suite.task}")
     results: list[EpisodeResult] = []
     perturbed: dict[tuple[str, float], list[EpisodeResult]] = {}
     episodes: list = []
@@ -595,6 +653,11 @@ def summary_lines(report: dict, out: Path) -> list[str]:
         f"({c['vs_nominal']['difference']:+.1%}, p {c['vs_nominal']['p_value']:.2g})"
         for c in report.get("robustness", [])
     )
+    if report.get("partial"):
+        lines.append(
+            f"  stopped after the first {report['partial']['episodes']} of the suite's "
+            f"{report['partial']['suite_episodes']} seeds: --resume scores on (the journal is kept)"
+        )
     lines.append(
         f"  report: {out / REPORT_MD} (+ {REPORT_JSON}, {len(report['output']['plots'])} plots, "
         f"{len(report['output']['videos'])} videos)"
