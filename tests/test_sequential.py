@@ -86,12 +86,12 @@ def _flags(out: Path, *extra: str) -> dict:
     from kitbench.cli import build_parser
 
     args = build_parser().parse_args(["race", *RACE, "--out", str(out), *extra])
-    from kitbench.cli import COMMANDS, _config
+    from kitbench.cli import COMMANDS, _imported
     from kitbench.config.flags import given
 
     flags: dict = {}
     for config, only in COMMANDS["race"].settings:
-        flags.update({k: v for k, v in given(_config(config), args).items() if only is None or k in only})
+        flags.update({k: v for k, v in given(_imported(config), args).items() if only is None or k in only})
     return flags
 
 
