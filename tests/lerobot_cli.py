@@ -1,12 +1,14 @@
-"""Stock lerobot commands as the tests run them: offline, in a subprocess, failing with the command's output."""
+"""Stock lerobot commands as the tests run them: offline, in a process of their own (`tests.launch`), failing with
+the command's output."""
 
 from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
+
+from tests import launch
 
 BIN = Path(sys.executable).parent
 OFFLINE = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
@@ -23,7 +25,7 @@ def lerobot_train(config: Path, data: Path, out: Path, cwd: Path, *overrides: st
         "--num_workers=0",
         *overrides,
     ]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
+    run = launch.run(cmd, text=True, env=OFFLINE, timeout=900, cwd=cwd)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     return run.stdout + run.stderr
 

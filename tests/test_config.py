@@ -18,7 +18,9 @@ from kitbench.errors import KitbenchError
 from kitbench.evaluation.suite import SUITE_KEYS
 from kitbench.recording.config import RECIPE_KEYS, RecordConfig, load_recipe
 
-COMMAND_CONFIGS = {command: [cli._imported(path) for path, _ in spec.settings] for command, spec in cli.COMMANDS.items()}
+COMMAND_CONFIGS = {
+    command: [cli._imported(path) for path, _ in spec.settings] for command, spec in cli.COMMANDS.items()
+}
 
 
 @pytest.mark.parametrize("command", [c for c, configs in COMMAND_CONFIGS.items() if configs])

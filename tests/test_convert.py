@@ -4,7 +4,6 @@ another action space, each episode checked against its source, with the recorder
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import pytest
 
 from kitbench.recording.convert import convert_config
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.processes import kill_once_committed
 from tests.test_recording import _columns, _load, kits_successes_only
 
@@ -143,7 +143,7 @@ def test_an_episode_that_diverges_is_reported_and_not_stored(tmp_path):
     source = _source(tmp_path / "src", "pd_joint_pos", episodes=2, mcap=False)
     swap_seeds(source)
     out = tmp_path / "deltas"
-    run = subprocess.run(
+    run = launch.run(
         [sys.executable, "-m", "kitbench.cli", "convert", str(source), "--out", str(out)]
         + ["--control-mode", "pd_joint_target_delta_pos"],
         capture_output=True,
@@ -233,8 +233,8 @@ def test_kill_minus_nine_loses_at_most_the_episode_in_flight_and_resume_finishes
     kill_once_committed([*cmd, "--out", str(out)], out)
     kept = _load(out).num_episodes
     assert 2 <= kept < 6
-    subprocess.run([*cmd, "--out", str(out), "--resume"], check=True, capture_output=True, timeout=600)
-    subprocess.run([*cmd, "--out", str(reference)], check=True, capture_output=True, timeout=600)
+    launch.run([*cmd, "--out", str(out), "--resume"], check=True, capture_output=True, timeout=600)
+    launch.run([*cmd, "--out", str(reference)], check=True, capture_output=True, timeout=600)
     a, b = _columns(out), _columns(reference)
     for name in (*COLUMNS, "episode_index", "frame_index"):
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
@@ -257,7 +257,7 @@ def test_kill_minus_nine_loses_at_most_the_episode_in_flight_and_resume_finishes
 )
 def test_bad_input_is_one_line_and_writes_nothing(joint_delta_source, tmp_path, make_args, needle):
     before = sorted(p.name for p in joint_delta_source.rglob("*"))
-    run = subprocess.run(
+    run = launch.run(
         [sys.executable, "-m", "kitbench.cli", "convert", *make_args(joint_delta_source, tmp_path)],
         capture_output=True,
         text=True,

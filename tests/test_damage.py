@@ -9,7 +9,6 @@ import json
 import os
 import random
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from kitbench.integrity import Damage, check_dataset
 from kitbench.metadata import EPISODES_FILE, INFO_FILE, RECORDING_FILE, RecordingInfo, lerobot_info, read_episodes
 from kitbench.recording.journal import journal_root
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 
 ROOT = Path(__file__).resolve().parents[1]
 TASK = "LiftPegUpright-v1"
@@ -278,7 +278,7 @@ def test_every_command_refuses_a_damaged_dataset_in_one_line_naming_the_file(rec
     DAMAGE[damage](damaged)
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
     for name, cmd in _commands(damaged, other, tmp_path / "out").items():
-        run = subprocess.run(cmd, env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=300)
+        run = launch.run(cmd, env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=300)
         lines = run.stderr.strip().splitlines()
         assert run.returncode != 0, (name, run.stdout[-1000:])
         assert len(lines) == 1 and str(damaged) in lines[0], (name, run.stderr[-3000:])
@@ -294,7 +294,7 @@ def test_lerobot_train_refuses_a_damaged_recording_in_one_line(recording, tmp_pa
     config = json.loads((ROOT / "policies/act_lift_peg_upright_state.json").read_text())
     config["dataset"]["root"] = str(damaged)
     (tmp_path / "config.json").write_text(json.dumps(config))
-    run = subprocess.run(
+    run = launch.run(
         [
             str(Path(sys.executable).parent / "lerobot-train"),
             f"--config_path={tmp_path / 'config.json'}",
@@ -329,7 +329,7 @@ def test_a_damaged_journal_entry_is_recorded_again_in_seed_order(recording, tmp_
     entries = sorted(journal_root(out).glob("seed-*.npz"))
     assert len(entries) == EPISODES - 1
     _truncate(entries[1])
-    run = subprocess.run([*cmd, "--resume"], env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    run = launch.run([*cmd, "--resume"], env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
     assert f"{entries[1]} is unreadable" in run.stderr and f"seeds 1-{EPISODES - 2} recorded again" in run.stderr
     same_content(recording, out)

@@ -22,6 +22,7 @@ from kitbench.evaluation.report import without_timing
 from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import adhoc_suite
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.lerobot_cli import BIN, OFFLINE, lerobot_train, small_config
 
 SEEDS = 5
@@ -67,7 +68,7 @@ def _eval(task, obs_mode, policy, out, batch_size, control_mode="pd_ee_delta_pos
 def _kitbench_eval(*args: str) -> subprocess.CompletedProcess:
     """`kitbench eval --task LiftPegUpright-v1 <args>`, offline, as a user runs it."""
     cmd = [str(BIN / "kitbench"), "eval", "--task", "LiftPegUpright-v1", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=300)
+    return launch.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=300)
 
 
 def test_batches_of_policies_that_act_alone_score_exactly_as_unbatched(tmp_path):
@@ -170,7 +171,7 @@ def test_the_lerobot_plugin_still_batches_its_envs(tmp_path):
 
 
 def test_help_names_the_flags():
-    run = subprocess.run([str(BIN / "kitbench"), "eval", "--help"], capture_output=True, text=True, timeout=120)
+    run = launch.run([str(BIN / "kitbench"), "eval", "--help"], capture_output=True, text=True, timeout=120)
     assert "--batch-size" in run.stdout and "--device" in run.stdout
 
 

@@ -8,7 +8,6 @@ import json
 import os
 import shutil
 import signal
-import subprocess
 import sys
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from kitbench.evaluation.suite import adhoc_suite
 from kitbench.metadata import RecordingInfo
 from kitbench.policies.lerobot_policy import LeRobotPolicy
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.lerobot_cli import lerobot_train, small_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,12 +152,12 @@ def test_a_resume_with_changed_weights_is_refused_in_one_line(trained, tmp_path)
     args += ["--policy", f"lerobot:{checkpoint}", "--device", "cpu", "--out", str(tmp_path / "report")]
     env = {**os.environ, "HF_HUB_OFFLINE": "1", faults.VAR: "eval.journaled:1"}
     env.pop(faults.OWNER_VAR, None)
-    killed = subprocess.run(args, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    killed = launch.run(args, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
     _change_one_weight(checkpoint)
     before = {p: p.read_bytes() for p in (tmp_path / "report").rglob("*") if p.is_file()}
     env.pop(faults.VAR)
-    run = subprocess.run([*args, "--resume"], env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    run = launch.run([*args, "--resume"], env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr[-3000:]
     assert "cannot resume" in lines[0] and "checkpoint file model.safetensors: journal sha256" in lines[0]

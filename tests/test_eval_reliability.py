@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import load_suite
 from kitbench.evaluation.work import EvalWork
 from kitbench.tasks.lift_peg_upright import LiftPegUprightEnv
+from tests import launch
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ROOT / "eval" / "suites" / "lift_peg_upright_short.toml"
@@ -43,7 +43,7 @@ def test_without_a_render_device_the_report_is_kept_and_says_why_there_are_no_vi
         "report = run_eval(EvalConfig.of(suite, 'expert', Path(sys.argv[1]), videos=1), progress=False)\n"
         "print(json.dumps({'video_error': report['output'].get('video_error'), 'doctor': vulkan_error()}))\n"
     )
-    done = subprocess.run(
+    done = launch.run(
         [sys.executable, "-c", code, str(out)],
         capture_output=True,
         text=True,
@@ -152,7 +152,7 @@ def test_reports_without_physics_errors_still_list_the_category():
 def test_scoring_on_images_without_a_render_device_is_one_line(tmp_path):
     out = tmp_path / "report"
     env = {**os.environ, "VK_ICD_FILENAMES": "/nonexistent.json", "VK_DRIVER_FILES": "/nonexistent.json"}
-    run = subprocess.run(
+    run = launch.run(
         [
             sys.executable,
             "-m",

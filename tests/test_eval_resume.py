@@ -20,6 +20,7 @@ import pytest
 import kitbench  # noqa: F401
 from kitbench import faults
 from kitbench.evaluation.journal import EvalJournal
+from tests import launch
 from tests.conftest import VULKAN
 from tests.datasets_equal import no_leftovers, same_content
 
@@ -56,7 +57,7 @@ def _run(folder: Path, args: list[str], fault: str | None = None) -> subprocess.
     env.pop(faults.OWNER_VAR, None)
     if fault is not None:
         env[faults.VAR] = fault
-    return subprocess.run(args, cwd=folder, env=env, capture_output=True, text=True, timeout=600)
+    return launch.run(args, cwd=folder, env=env, timeout=600, text=True)
 
 
 def _ok(folder: Path, args: list[str]) -> subprocess.CompletedProcess:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import sys
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from kitbench.evaluation.runner import pick_video_seeds, run_eval
 from kitbench.evaluation.stats import describe, rate, wilson_interval
 from kitbench.evaluation.suite import Suite, adhoc_suite, load_suite
 from kitbench.tasks.lift_peg_upright import MAX_TILT
+from tests import launch
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITES = sorted((ROOT / "eval" / "suites").glob("*.toml"))
@@ -354,7 +354,7 @@ def test_videos_replay_the_scored_episodes(tmp_path, needs_vulkan):
 
 # -- command line ----------------------------------------------------------------------------------
 def _cli(*args):
-    return subprocess.run(
+    return launch.run(
         [sys.executable, "-m", "kitbench.cli", "eval", *args], capture_output=True, text=True, timeout=600, cwd=ROOT
     )
 

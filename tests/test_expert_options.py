@@ -5,7 +5,6 @@ must share, and in the command its card prints."""
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,6 +17,7 @@ from kitbench.recording.config import load_recipe
 from kitbench.recording.convert import convert_config
 from kitbench.recording.recorder import RecordConfig, record
 from kitbench.tasks.lift_peg_upright import PEG_HALF_LENGTH
+from tests import launch
 from tests.lerobot_cli import BIN, OFFLINE
 from tests.test_recording import _columns
 
@@ -86,7 +86,7 @@ def test_options_are_kept_with_the_recording_a_resume_must_share_them_and_the_ca
     command = text.split("- Made again by: `")[1].split("`")[0]
     assert "--policy-option close_steps=8" in command
     again = tmp_path / "again"
-    run = subprocess.run(
+    run = launch.run(
         [str(BIN / "kitbench"), *command.split()[1:-1], str(again), "--no-mcap"],
         capture_output=True,
         text=True,

@@ -6,12 +6,12 @@ it was trained at."""
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import pytest
 
 from kitbench.recording.recorder import load_recipe, record
+from tests import launch
 from tests.lerobot_cli import BIN, OFFLINE, lerobot_train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,7 +77,7 @@ def test_image_config_trains_on_a_cpu_and_its_checkpoint_is_scored(path, needs_v
 
     report = tmp_path / "eval"
     task = config["env"]["task"]
-    score = subprocess.run(
+    score = launch.run(
         [
             str(BIN / "kitbench"),
             "eval",

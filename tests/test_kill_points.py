@@ -5,15 +5,13 @@ itself the nth time it passes the point, so moments a wall-clock kill almost nev
 between its two renames, are reached every time), resumes it, and compares the result with an uninterrupted
 recording of the same seeds: every data column, the episode metadata, the settings, the MCAP logs byte for byte,
 nothing left beside the dataset. Killing at wall-clock moments, and the other writers (shards, convert, eval
---save-dataset, merge), are in test_durability.py, test_ray_executor.py and below.
+--save-dataset, merge), are in test_durability.py, test_ray_executor.py and test_kill_points_writers.py.
 """
 
 from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -21,10 +19,9 @@ import pytest
 import kitbench  # noqa: F401
 from kitbench import faults
 from kitbench.errors import KitbenchError
-from kitbench.metadata import read_episodes
-from kitbench.recording.dataset import recover
 from kitbench.recording.journal import journal_root
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.datasets_equal import no_leftovers, same_content
 from tests.processes import record_command
 
@@ -63,11 +60,16 @@ CASES: dict[str, tuple[float, list[str]]] = {
 }
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> Path:
+def record_reference(tmp_path_factory) -> Path:
+    """The uninterrupted recording the killed ones are compared with."""
     out = tmp_path_factory.mktemp("reference") / "ds"
     record(RecordConfig.of(task=TASK, episodes=EPISODES, out=out), progress=False)
     return out
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    return record_reference(tmp_path_factory)
 
 
 def _command(out: Path, interval: float, resume: bool) -> list[str]:
@@ -79,7 +81,7 @@ def killed_at(cmd: list[str], fault: str) -> None:
     """Run `cmd` with the fault point armed; it must die there, by SIGKILL."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", faults.VAR: fault}
     env.pop(faults.OWNER_VAR, None)
-    run = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    run = launch.run(cmd, env=env, cwd=ROOT, timeout=600, text=True)
     assert run.returncode == -signal.SIGKILL, f"{fault} was not reached (exit {run.returncode}): {run.stderr[-2000:]}"
 
 
@@ -106,144 +108,10 @@ def test_every_fault_point_is_passed_somewhere_in_the_code():
 
 def test_a_bad_fault_value_is_one_line_naming_the_points(tmp_path):
     env = {**os.environ, faults.VAR: "commit.nowhere:2"}
-    run = subprocess.run(
-        record_command(tmp_path / "x", TASK, "--episodes", "1"),
-        env=env,
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    run = launch.run(record_command(tmp_path / "x", TASK, "--episodes", "1"), env=env, cwd=ROOT, timeout=300, text=True)
     assert run.returncode == 2
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and "'commit.nowhere'" in lines[0] and "commit.retired" in lines[0]
     assert not (tmp_path / "x").exists() and not journal_root(tmp_path / "x").exists()
     with pytest.raises(KitbenchError, match="whole number"):
         faults.parse("commit.card:0")
-
-
-# -- the other writers ---------------------------------------------------------------------------------------
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "kitbench.cli", *args]
-
-
-def _ok(cmd: list[str]) -> subprocess.CompletedProcess:
-    run = subprocess.run(
-        cmd, env={**os.environ, "HF_HUB_OFFLINE": "1"}, cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
-    assert run.returncode == 0, run.stderr[-3000:]
-    assert "Traceback" not in run.stderr
-    return run
-
-
-SHARDED = {
-    "a shard half unpacked into the journal": "shards.extracting:2",
-    "the shards merged, not in place": "shards.merged:1",
-    "the merge in place, the shards still journaled": "shards.swapped:1",
-}
-
-
-@pytest.mark.parametrize("fault", SHARDED.values(), ids=SHARDED.keys())
-def test_a_sharded_recording_killed_at_a_fault_point_resumes_into_one_writers_recording(tmp_path, reference, fault):
-    out = tmp_path / "ds"
-    sharded = ["--shard-episodes", "4", "--workers", "2"]
-    killed_at([*_command(out, OPEN, resume=False), *sharded], fault)
-    _ok([*_command(out, OPEN, resume=True), *sharded])
-    same_content(reference, out)
-    no_leftovers(out)
-
-
-@pytest.fixture(scope="module")
-def converted(tmp_path_factory, reference) -> Path:
-    out = tmp_path_factory.mktemp("converted") / "ds"
-    _ok(_cli("convert", str(reference), "--out", str(out), "--control-mode", "pd_joint_pos"))
-    return out
-
-
-@pytest.mark.parametrize(
-    ("interval", "fault"),
-    [(OPEN, "writer.saved:7"), (EACH, "commit.retired:3")],
-    ids=["a data file open", "the dataset set aside"],
-)
-def test_a_conversion_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(
-    tmp_path, reference, converted, interval, fault
-):
-    out = tmp_path / "ds"
-    convert = _cli(
-        "convert",
-        str(reference),
-        "--out",
-        str(out),
-        "--control-mode",
-        "pd_joint_pos",
-        "--commit-interval",
-        str(interval),
-    )
-    killed_at(convert, fault)
-    _ok([*convert, "--resume"])
-    same_content(converted, out)
-    no_leftovers(out)
-
-
-def _eval_save(reference: Path, report: Path, dataset: Path, *extra: str) -> list[str]:
-    return _cli(
-        "eval",
-        "--task",
-        TASK,
-        "--seed",
-        "0",
-        "--episodes",
-        "4",
-        "--policy",
-        f"replay:{reference}",
-        "--out",
-        str(report),
-        "--save-dataset",
-        str(dataset),
-        *extra,
-    )
-
-
-@pytest.fixture(scope="module")
-def saved(tmp_path_factory, reference) -> Path:
-    folder = tmp_path_factory.mktemp("saved")
-    _ok(_eval_save(reference, folder / "report", folder / "ds"))
-    return folder / "ds"
-
-
-@pytest.mark.parametrize("fault", ["writer.saved:2", "commit.card:1", "commit.retired:1"])
-def test_an_evaluation_killed_while_saving_its_dataset_leaves_the_old_one_or_the_new_one_whole(
-    tmp_path, reference, saved, fault
-):
-    """Saved over an existing dataset (--overwrite): a kill leaves it as it was or the new one whole, never
-    neither; the same command again writes the new one."""
-    dataset = tmp_path / "ds"
-    _ok(_eval_save(reference, tmp_path / "first", dataset, "--episodes", "2"))
-    killed_at(_eval_save(reference, tmp_path / "report", dataset, "--overwrite"), fault)
-    recover(dataset)
-    seeds = [e.seed for e in read_episodes(dataset)]
-    assert seeds in ([0, 1], [0, 1, 2, 3])  # the old dataset, or the new one whole
-    _ok(_eval_save(reference, tmp_path / "report", dataset, "--overwrite"))
-    same_content(saved, dataset)
-    no_leftovers(dataset)
-
-
-@pytest.fixture(scope="module")
-def halves(tmp_path_factory) -> tuple[Path, Path, Path]:
-    folder = tmp_path_factory.mktemp("halves")
-    a, b, merged = folder / "a", folder / "b", folder / "merged"
-    record(RecordConfig.of(task=TASK, episodes=EPISODES // 2, out=a), progress=False)
-    record(RecordConfig.of(task=TASK, episodes=EPISODES // 2, seed=EPISODES // 2, out=b), progress=False)
-    _ok(_cli("merge", str(a), str(b), "--out", str(merged)))
-    return a, b, merged
-
-
-@pytest.mark.parametrize("fault", ["merge.aggregated:1", "merge.retired:1"])
-def test_a_merge_killed_at_a_fault_point_leaves_nothing_and_runs_again(tmp_path, halves, fault):
-    a, b, merged = halves
-    out = tmp_path / "merged"
-    _ok(_cli("merge", str(a), str(b), "--out", str(out)))  # an earlier merge, replaced below
-    killed_at(_cli("merge", str(a), str(b), "--out", str(out), "--overwrite"), fault)
-    _ok(_cli("merge", str(a), str(b), "--out", str(out), "--overwrite"))
-    same_content(merged, out)
-    no_leftovers(out)

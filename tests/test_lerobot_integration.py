@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pytest
 
 import kitbench  # noqa: F401
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.lerobot_cli import BIN, OFFLINE, lerobot_train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,7 +59,7 @@ def test_env_plugin_is_discovered_by_lerobot():
         "cfg = cls(task='AssemblingKits-v1', obs_type='pixels_state')\n"
         "print(sorted(cfg.features_map.values()))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=OFFLINE, timeout=300)
+    out = launch.run([sys.executable, "-c", code], capture_output=True, text=True, env=OFFLINE, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "observation.images.hand_camera" in out.stdout and "observation.environment_state" in out.stdout
 
@@ -79,7 +79,7 @@ def test_lerobot_env_speaks_lerobot_names(needs_vulkan):
 
 def test_kitbench_eval_scores_the_trained_checkpoint(checkpoint, tmp_path):
     out = tmp_path / "report"
-    result = subprocess.run(
+    result = launch.run(
         [
             sys.executable,
             "-m",
@@ -171,7 +171,7 @@ def _lerobot_eval(checkpoint, cwd, out, batch_size, use_async, *extra) -> dict:
         f"--output_dir={out}",
         *extra,
     ]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
+    run = launch.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     return json.loads((Path(out) / "eval_info.json").read_text())
 
@@ -206,7 +206,7 @@ def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(checkpoint, tmp_pa
         "--videos=0",
         f"--out={tmp_path / 'kitbench'}",
     ]
-    run = subprocess.run(scored, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
+    run = launch.run(scored, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     ours = {e["seed"]: e for e in json.loads((tmp_path / "kitbench" / "report.json").read_text())["per_episode"]}
     assert sorted(theirs) == sorted(ours) == list(range(first, first + 4))

@@ -23,6 +23,7 @@ from kitbench.evaluation.config import EvalConfig
 from kitbench.evaluation.runner import run_eval
 from kitbench.evaluation.suite import load_suite
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.datasets_equal import no_leftovers, same_content
 from tests.engine_work import DiesOnceWork, SleepWork
 
@@ -250,7 +251,7 @@ def test_a_ray_recording_whose_driver_is_killed_at_a_fault_point_resumes_into_th
     out = tmp_path / "lpu"
     env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1", faults.VAR: fault}
     env.pop(faults.OWNER_VAR, None)
-    killed = subprocess.run(
+    killed = launch.run(
         _record_command(out, cluster.address, *extra), cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
     )
     assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
@@ -274,7 +275,7 @@ def test_an_evaluation_on_ray_whose_driver_is_killed_resumes_into_the_uninterrup
 
 def _actor_pids() -> list[int]:
     """Processes of the kitbench Ray actors (Ray names them ray::_EpisodeWorker)."""
-    listing = subprocess.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout
+    listing = launch.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout
     return [int(line.split()[0]) for line in listing.splitlines() if "ray::_EpisodeWorker" in line]
 
 
@@ -308,7 +309,7 @@ def test_ray_not_installed_is_one_line_before_anything_is_written(tmp_path):
         "sys.exit(main(sys.argv[1:]))\n"
     )
     out = tmp_path / "lpu"
-    done = subprocess.run(
+    done = launch.run(
         [sys.executable, "-c", code, "record", "--task", "LiftPegUpright-v1", "--episodes", "1"]
         + ["--out", str(out), "--executor", "ray"],
         capture_output=True,

@@ -5,7 +5,6 @@ with every dataset."""
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import gymnasium as gym
@@ -17,6 +16,7 @@ import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.errors import KitbenchError
 from kitbench.policies.expert import ExpertPolicy
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.lerobot_cli import BIN, OFFLINE, lerobot_train, small_config
 from tests.test_recording import _columns
 
@@ -53,7 +53,7 @@ def test_the_card_describes_the_dataset_and_its_command_makes_it_again(tmp_path)
     command = text.split("- Made again by: `")[1].split("`")[0]
     assert command.startswith("kitbench record --task LiftPegUpright-v1 --episodes 2 --seed 4 ")
     again = tmp_path / "again"
-    run = subprocess.run(
+    run = launch.run(
         [str(BIN / "kitbench"), *command.split()[1:-1], str(again)], capture_output=True, text=True, env=OFFLINE
     )
     assert run.returncode == 0, run.stderr[-2000:]

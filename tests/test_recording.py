@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import pytest
 
 import kitbench
 from kitbench.recording.recorder import RecordConfig, load_recipe, record
+from tests import launch
 from tests.datasets_equal import older_recording
 from tests.processes import kill_once_committed
 
@@ -421,8 +421,8 @@ def test_kill_minus_nine_keeps_committed_episodes_and_resume_finishes(tmp_path):
     kept = ds.num_episodes
     assert 2 <= kept < 6
     assert len(ds) == ds.meta.total_frames
-    subprocess.run([*cmd, "--out", str(out), "--resume"], check=True, capture_output=True, timeout=600)
-    subprocess.run([*cmd, "--out", str(reference)], check=True, capture_output=True, timeout=600)
+    launch.run([*cmd, "--out", str(out), "--resume"], check=True, capture_output=True, timeout=600)
+    launch.run([*cmd, "--out", str(reference)], check=True, capture_output=True, timeout=600)
     a, b = _columns(out), _columns(reference)
     for key in ("observation.state", "action", "episode_seed", "episode_index", "frame_index"):
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from kitbench.errors import KitbenchError
 from kitbench.evaluation.report import without_timing
 from kitbench.evaluation.select import check_validation_suite, verdict
 from kitbench.evaluation.suite import load_suite
+from tests import launch
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITES = sorted((ROOT / "eval" / "suites").glob("*.toml"))
@@ -136,7 +136,7 @@ def test_a_killed_selection_resumes_into_the_uninterrupted_reports(selected, tin
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": str(ROOT), faults.VAR: "eval.journaled:1"}
     env.pop(faults.OWNER_VAR, None)
     args = [sys.executable, "-m", "kitbench.cli", "select", str(tiny_act_run), "--suite", VAL, "--episodes", "1"]
-    killed = subprocess.run([*args, "--device", "cpu", "--out", str(out)], env=env, capture_output=True, timeout=300)
+    killed = launch.run([*args, "--device", "cpu", "--out", str(out)], env=env, capture_output=True, timeout=300)
     assert killed.returncode == -9, killed.stderr[-2000:]
     assert (out / "000001" / "journal").is_dir() and not (out / "select.json").exists()
     # rerun as it was: refused, nothing changed

@@ -9,7 +9,6 @@ import json
 import math
 import os
 import signal
-import subprocess
 import sys
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from kitbench.evaluation.compare import compare_reports
 from kitbench.evaluation.config import eval_config
 from kitbench.evaluation.race import race_config, run_race
 from kitbench.evaluation.runner import run_eval
+from tests import launch
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE = ROOT / "eval" / "suites" / "lift_peg_upright.toml"  # 100 seeds: room to stop early
@@ -135,11 +135,11 @@ def test_killed_race_resumes_into_the_uninterrupted_race(finished_race, tmp_path
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": str(ROOT), faults.VAR: "eval.journaled:13"}
     env.pop(faults.OWNER_VAR, None)
     command = [sys.executable, "-m", "kitbench.cli", "race", *RACE, "--out", str(out)]
-    killed = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    killed = launch.run(command, env=env, capture_output=True, text=True, timeout=300)
     assert killed.returncode == -signal.SIGKILL, killed.stderr[-2000:]
     assert not json.loads((out / "race.json").read_text())["finished"]
     del env[faults.VAR]
-    resumed = subprocess.run([*command, "--resume"], env=env, capture_output=True, text=True, timeout=300)
+    resumed = launch.run([*command, "--resume"], env=env, capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert "decision: A better" in resumed.stdout and "episodes used: 10 of the suite's 100" in resumed.stdout
     assert json.loads((out / "race.json").read_text()) == race_json

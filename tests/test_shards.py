@@ -15,6 +15,7 @@ from kitbench.recording.journal import EpisodeJournal, journal_root
 from kitbench.recording.recorder import RecordConfig, record
 from kitbench.recording.shards import ShardedRecording
 from kitbench.recording.stops import Stopped
+from tests import launch
 from tests.test_merge import _assert_same_recording, _frames
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -90,7 +91,7 @@ def test_sigterm_stops_a_sharded_pool_recording_promptly_and_resume_finishes(tmp
     stdout, stderr = proc.communicate(timeout=60)  # no worker left waiting: a hang fails here
     assert proc.returncode == 128 + signal.SIGTERM, stderr[-2000:]
     assert "continue with --resume" in stdout and list(shards.glob("shard-*"))
-    subprocess.run([*command, "--resume"], check=True, capture_output=True, timeout=300)
+    launch.run([*command, "--resume"], check=True, capture_output=True, timeout=300)
     seeds = [json.loads(line)["seed"] for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
     assert seeds == list(range(12))
 

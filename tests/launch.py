@@ -1,0 +1,134 @@
+"""`python -m kitbench.cli ...` run as a process of its own, without paying the interpreter's start-up each time.
+
+A kill test runs the command line dozens of times, and each fresh interpreter spends seconds importing kitbench,
+SAPIEN, torch and LeRobot before it does anything. Here a fork server imports them once, and each run is a fork of
+it: a process of its own (its own pid, environment, folder, stdout and stderr; a SIGKILL at a fault point kills it
+alone and is its exit status, as for a subprocess), with `sys.argv` as `python -m kitbench.cli` sets it, so that
+what a run records of its command line is the same either way. The server forks from a single-threaded process
+that has only imported modules: nothing a test did beforehand leaks into a run.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+# imported once by the server: what `kitbench record`, `eval`, `convert` and `merge` load before they work
+PRELOAD = [
+    "kitbench.cli",
+    "kitbench.recording.recorder",
+    "kitbench.recording.dataset",
+    "kitbench.evaluation.runner",
+    "lerobot.datasets.lerobot_dataset",
+    "lerobot.scripts.lerobot_train",
+]
+# console scripts run as their entry points: the script's name -> "module:function" (reads sys.argv)
+SCRIPTS = {
+    "kitbench": "kitbench.cli:main",
+    "lerobot-train": "lerobot.scripts.lerobot_train:main",
+    "lerobot-eval": "lerobot.scripts.lerobot_eval:main",
+}
+_context = None
+
+
+def _server():
+    global _context
+    if _context is None:
+        _context = multiprocessing.get_context("forkserver")
+        _context.set_forkserver_preload(PRELOAD)
+    return _context
+
+
+def _main(script: str, args: list[str], env: dict[str, str], cwd: str, stdout: str, stderr: str) -> None:
+    os.chdir(cwd)
+    os.environ.clear()
+    os.environ.update(env)
+    for fd, path in ((1, stdout), (2, stderr)):
+        handle = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+        os.dup2(handle, fd)
+        os.close(handle)
+    import importlib
+
+    module, _, name = SCRIPTS[script].partition(":")
+    loaded = importlib.import_module(module)
+    # as `python -m kitbench.cli` or the console script sets it: what a run records of its command line
+    sys.argv = [loaded.__file__ if script == "kitbench" else str(Path(sys.executable).parent / script), *args]
+    try:
+        code = getattr(loaded, name)(*([args] if script == "kitbench" else []))
+        code = code if isinstance(code, int) else 0
+    except SystemExit as exc:  # argparse's refusals and --help
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except BaseException:  # noqa: BLE001  (an uncaught error ends the run as the interpreter does: traceback, 1)
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)  # as the interpreter would, without this fork running its server's exit handlers
+
+
+def _capture_file(suffix: str) -> str:
+    fd, path = tempfile.mkstemp(prefix="kitbench-launch-", suffix=suffix)
+    os.close(fd)
+    return path
+
+
+def run_cli(
+    args: list[str],
+    *,
+    env: dict[str, str] | None = None,
+    cwd: Path | str | None = None,
+    timeout: float = 600,
+    script: str = "kitbench",
+) -> subprocess.CompletedProcess:
+    """`script` (a console script of `SCRIPTS`; `kitbench`: `python -m kitbench.cli`) with `args` in `cwd` with
+    `env` (default: this process's), its output captured: the subprocess.run(..., capture_output=True, text=True)
+    of it, with -N the exit status of a run killed by signal N."""
+    folder = Path(cwd or os.getcwd())
+    out, err = (_capture_file(suffix) for suffix in (".out", ".err"))
+    process = _server().Process(target=_main, args=(script, list(args), dict(env or os.environ), str(folder), out, err))
+    process.start()
+    process.join(timeout)
+    if process.is_alive():
+        process.kill()
+        process.join()
+        raise subprocess.TimeoutExpired([script, *args], timeout)
+    try:
+        return subprocess.CompletedProcess(
+            [script, *args], process.exitcode, Path(out).read_text(), Path(err).read_text()
+        )
+    finally:
+        Path(out).unlink(missing_ok=True)
+        Path(err).unlink(missing_ok=True)
+
+
+def script_args(command: list) -> tuple[str, list[str]] | None:
+    """(script, arguments) of `python -m kitbench.cli ...` or of a console script of `SCRIPTS` beside this
+    interpreter, or None for another command."""
+    command = [str(part) for part in command]
+    if command[:3] == [sys.executable, "-m", "kitbench.cli"]:
+        return "kitbench", command[3:]
+    for script in SCRIPTS:
+        if command[:1] == [str(Path(sys.executable).parent / script)]:
+            return script, command[1:]
+    return None
+
+
+def run(command: list, *, env=None, cwd=None, timeout: float = 600, check: bool = False, text: bool = False, **kwargs):
+    """subprocess.run(command, ...) with its output captured, a kitbench command by `run_cli`, any other as
+    subprocess runs it; `check` and `text` as subprocess has them."""
+    known = script_args(command)
+    if known is None:
+        kwargs.setdefault("capture_output", True)
+        return subprocess.run(command, env=env, cwd=cwd, timeout=timeout, check=check, text=text, **kwargs)
+    done = run_cli(known[1], env=env, cwd=cwd, timeout=timeout, script=known[0])
+    if not text:
+        done = subprocess.CompletedProcess(done.args, done.returncode, done.stdout.encode(), done.stderr.encode())
+    if check:
+        done.check_returncode()
+    return done
