@@ -62,10 +62,8 @@ def _main(script: str, args: list[str], env: dict[str, str], cwd: str, stdout: s
         code = code if isinstance(code, int) else 0
     except SystemExit as exc:  # argparse's refusals and --help
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    except BaseException:  # noqa: BLE001  (an uncaught error ends the run as the interpreter does: traceback, 1)
-        import traceback
-
-        traceback.print_exc()
+    except BaseException:  # noqa: BLE001  (an uncaught error ends the run as the interpreter does: its hook, 1)
+        sys.excepthook(*sys.exc_info())
         code = 1
     sys.stdout.flush()
     sys.stderr.flush()
