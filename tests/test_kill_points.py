@@ -30,6 +30,8 @@ TASK = "LiftPegUpright-v1"
 # LeRobot buffers episode metadata ten episodes at a time: past ten, a session has an episode index on disk whose
 # data file has no footer yet, the state the first report of a failing resume was in.
 EPISODES = 12
+# With a commit after every episode, every point below is passed within the first five commits: six episodes do.
+EACH_EPISODES = 6
 OPEN = 30.0  # commit interval that keeps one session open for the whole recording
 EACH = 0.0  # a commit after every episode
 
@@ -60,10 +62,10 @@ CASES: dict[str, tuple[float, list[str]]] = {
 }
 
 
-def record_reference(tmp_path_factory) -> Path:
+def record_reference(tmp_path_factory, episodes: int = EPISODES) -> Path:
     """The uninterrupted recording the killed ones are compared with."""
     out = tmp_path_factory.mktemp("reference") / "ds"
-    record(RecordConfig.of(task=TASK, episodes=EPISODES, out=out), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=episodes, out=out), progress=False)
     return out
 
 
@@ -72,8 +74,23 @@ def reference(tmp_path_factory) -> Path:
     return record_reference(tmp_path_factory)
 
 
+@pytest.fixture(scope="module")
+def short_reference(tmp_path_factory) -> Path:
+    return record_reference(tmp_path_factory, EACH_EPISODES)
+
+
+def _episodes(interval: float) -> int:
+    return EPISODES if interval == OPEN else EACH_EPISODES
+
+
 def _command(out: Path, interval: float, resume: bool) -> list[str]:
-    flags = ["--episodes", str(EPISODES), "--commit-interval", str(interval), *(["--resume"] if resume else [])]
+    flags = [
+        "--episodes",
+        str(_episodes(interval)),
+        "--commit-interval",
+        str(interval),
+        *(["--resume"] if resume else []),
+    ]
     return record_command(out, TASK, *flags)
 
 
@@ -86,15 +103,17 @@ def killed_at(cmd: list[str], fault: str) -> None:
 
 
 @pytest.mark.parametrize(("interval", "kills"), CASES.values(), ids=CASES.keys())
-def test_a_recording_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(tmp_path, reference, interval, kills):
+def test_a_recording_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(tmp_path, request, interval, kills):
+    reference = request.getfixturevalue("reference" if interval == OPEN else "short_reference")
     out = tmp_path / "ds"
     for i, fault in enumerate(kills):
         killed_at(_command(out, interval, resume=i > 0), fault)
     assert out.exists() or journal_root(out).exists()  # something to resume
+    episodes = _episodes(interval)
     summary = record(
-        RecordConfig.of(task=TASK, episodes=EPISODES, out=out, commit_interval=interval, resume=True), progress=False
+        RecordConfig.of(task=TASK, episodes=episodes, out=out, commit_interval=interval, resume=True), progress=False
     )
-    assert summary.stored == EPISODES
+    assert summary.stored == episodes
     same_content(reference, out)
     no_leftovers(out)
 
