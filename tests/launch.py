@@ -51,15 +51,8 @@ def _main(script: str, args: list[str], env: dict[str, str], cwd: str, stdout: s
         handle = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
         os.dup2(handle, fd)
         os.close(handle)
-    import importlib
-
-    module, _, name = SCRIPTS[script].partition(":")
-    loaded = importlib.import_module(module)
-    # as `python -m kitbench.cli` or the console script sets it: what a run records of its command line
-    sys.argv = [loaded.__file__ if script == "kitbench" else str(Path(sys.executable).parent / script), *args]
     try:
-        code = getattr(loaded, name)(*([args] if script == "kitbench" else []))
-        code = code if isinstance(code, int) else 0
+        code = _call(script, args)
     except SystemExit as exc:  # argparse's refusals and --help
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     except BaseException:  # noqa: BLE001  (an uncaught error ends the run as the interpreter does: its hook, 1)
@@ -68,6 +61,25 @@ def _main(script: str, args: list[str], env: dict[str, str], cwd: str, stdout: s
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)  # as the interpreter would, without this fork running its server's exit handlers
+
+
+def _call(script: str, args: list[str]) -> int:
+    """Run `script` with `args` as its interpreter would, `sys.argv` as it sets it: what a run records of its
+    command line. A `.py` file runs as `python FILE` runs it (its folder first on the path)."""
+    if script.endswith(".py"):
+        import runpy
+
+        sys.argv = [script, *args]
+        sys.path.insert(0, str(Path(script).parent))
+        runpy.run_path(script, run_name="__main__")
+        return 0
+    import importlib
+
+    module, _, name = SCRIPTS[script].partition(":")
+    loaded = importlib.import_module(module)
+    sys.argv = [loaded.__file__ if script == "kitbench" else str(Path(sys.executable).parent / script), *args]
+    code = getattr(loaded, name)(*([args] if script == "kitbench" else []))
+    return code if isinstance(code, int) else 0
 
 
 def _capture_file(suffix: str) -> str:
@@ -106,14 +118,16 @@ def run_cli(
 
 
 def script_args(command: list) -> tuple[str, list[str]] | None:
-    """(script, arguments) of `python -m kitbench.cli ...` or of a console script of `SCRIPTS` beside this
-    interpreter, or None for another command."""
+    """(script, arguments) of `python -m kitbench.cli ...`, of a console script of `SCRIPTS` beside this
+    interpreter or of `python FILE.py ...`, or None for another command."""
     command = [str(part) for part in command]
     if command[:3] == [sys.executable, "-m", "kitbench.cli"]:
         return "kitbench", command[3:]
     for script in SCRIPTS:
         if command[:1] == [str(Path(sys.executable).parent / script)]:
             return script, command[1:]
+    if command[:1] == [sys.executable] and len(command) > 1 and command[1].endswith(".py"):
+        return command[1], command[2:]  # a script file: `python FILE args`
     return None
 
 

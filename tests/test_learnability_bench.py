@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from tests import launch
 from tests.lerobot_cli import OFFLINE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,7 +21,7 @@ TASK = "LiftPegUpright-v1"
 
 def _bench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     command = [sys.executable, str(BENCH), "--task", TASK, "--demos", "2", *args]
-    return subprocess.run(command, capture_output=True, text=True, env=OFFLINE, cwd=cwd, timeout=1500, check=False)
+    return launch.run(command, capture_output=True, text=True, env=OFFLINE, cwd=cwd, timeout=1500, check=False)
 
 
 @pytest.mark.parametrize(

@@ -4,13 +4,13 @@ builds and runs it; bad arguments are one line (exit 2)."""
 from __future__ import annotations
 
 import re
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 from kitbench.recording.recorder import load_recipe, record
+from tests import launch
 from tests.lerobot_cli import OFFLINE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,7 +28,7 @@ BENCH = ROOT / "bench" / "train_levers.py"
     ],
 )
 def test_bad_arguments_are_one_line(args, message):
-    run = subprocess.run([sys.executable, str(BENCH), *args], capture_output=True, text=True, cwd=ROOT, env=OFFLINE)
+    run = launch.run([sys.executable, str(BENCH), *args], capture_output=True, text=True, cwd=ROOT, env=OFFLINE)
     assert run.returncode == 2 and message in run.stderr.strip().splitlines()[-1]
 
 
@@ -46,7 +46,7 @@ def test_the_bench_times_the_parts_and_the_levers_of_a_real_update(needs_vulkan,
     data = tmp_path / "lpu"
     recipe = load_recipe(ROOT / "datasets" / "lift_peg_upright_rgb.toml", episodes=2, out=data, workers=1)
     record(recipe.replace(mcap=False), progress=False)
-    run = subprocess.run(
+    run = launch.run(
         [
             sys.executable,
             str(BENCH),
