@@ -44,7 +44,7 @@ lint: bootstrap
 	@$(call step,mypy kitbench,$(VENV)/bin/mypy kitbench)
 
 test: lint
-	@$(call step,pytest,$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS))
+	@$(call step,pytest,$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS))
 
 # Applies the formatter and ruff's safe fixes; what remains is reported by `make lint`.
 fmt: bootstrap

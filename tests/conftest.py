@@ -71,23 +71,25 @@ def pytest_runtest_logreport(report):
 
 
 # The longest test files first (seconds measured with KITBENCH_TEST_TIMES on 2 cores): pytest-xdist hands out whole
-# files (--dist loadfile) in collection order, so a long file collected last runs alone at the end while the other
-# worker idles. Longest first, the short files fill in at the end. Only an order: a file not named keeps its place.
+# files (--dist loadfile) in collection order when told not to reorder them (--no-loadscope-reorder, as the Makefile
+# runs it; by default it puts the files with the most tests first), so a long file collected last runs alone at the
+# end while the other worker idles. Longest first, the short files fill in at the end. A file not named keeps its
+# place.
 LONGEST_FIRST = (
-    "test_image_configs.py",  # 290
-    "test_ray_executor.py",  # 222
+    "test_ray_executor.py",  # 246
+    "test_image_configs.py",  # 233
     "test_learnability_bench.py",  # 206
-    "test_kill_points.py",  # 139
-    "test_durability.py",  # 120
+    "test_eval_inference.py",  # 137
+    "test_lerobot_tools.py",  # 119
     "test_lerobot_integration.py",  # 111
-    "test_kill_points_writers.py",  # 104
-    "test_eval_inference.py",  # 101
-    "test_lerobot_tools.py",  # 98
-    "test_eval_resume.py",  # 98
+    "test_durability.py",  # 100
+    "test_kill_points.py",  # 100
+    "test_eval_resume.py",  # 99
     "test_train_levers.py",  # 80
-    "test_reproduce.py",  # 55
+    "test_reproduce.py",  # 62
+    "test_training_input.py",  # 52
     "test_shards.py",  # 52
-    "test_training_input.py",  # 48
+    "test_kit_physics.py",  # 46
 )
 
 
