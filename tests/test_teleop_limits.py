@@ -12,6 +12,7 @@ import tests.teleop_devices as devices
 from kitbench.errors import KitbenchError
 from kitbench.robots import ROBOTS
 from kitbench.teleop.limits import JointRateLimiter
+from tests.teleop_devices import scripted_keys  # noqa: F401  (autouse: every test's scripted keys)
 from tests.test_teleop_record import expert, frames, record
 
 SIXTY = math.radians(60.0)
@@ -58,16 +59,6 @@ def test_bad_speeds_and_targets_before_reset_are_refused():
         limiter.reset(np.zeros(3))
     with pytest.raises(RuntimeError):
         limiter(np.zeros(2))
-
-
-@pytest.fixture(autouse=True)
-def scripted_keys(monkeypatch):
-    from lerobot.utils import keyboard_input
-
-    monkeypatch.setattr(keyboard_input, "create_key_listener", devices.key_listener)
-    devices.SCRIPTS.clear()
-    yield
-    devices.SCRIPTS.clear()
 
 
 def test_a_leaders_60_degree_jump_reaches_the_simulated_follower_over_the_servos_steps_counted(tmp_path, capsys):

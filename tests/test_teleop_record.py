@@ -22,6 +22,7 @@ from kitbench.policies.registry import make_policy
 from kitbench.registration import make_env
 from kitbench.rollout import Hook, OneEpisode, run
 from kitbench.teleop.mapping import commanded_tcp
+from tests.teleop_devices import scripted_keys  # noqa: F401  (autouse: every test's scripted keys)
 
 LIFT = "LiftPegUpright-v1"
 NAMES = [f"{m}.pos" for m in devices.SO101_MOTORS]
@@ -78,17 +79,6 @@ def expert(seed: int, robot: str = "so101", mode: str = "pd_joint_pos") -> Exper
 @pytest.fixture(scope="module")
 def experts() -> dict[int, Expert]:
     return {seed: expert(seed) for seed in (0, 1, 2)}
-
-
-@pytest.fixture(autouse=True)
-def scripted_keys(monkeypatch):
-    """lerobot's key listener, as the episode keys start it, keeps its dispatch for the scripts' key presses."""
-    from lerobot.utils import keyboard_input
-
-    monkeypatch.setattr(keyboard_input, "create_key_listener", devices.key_listener)
-    devices.SCRIPTS.clear()
-    yield
-    devices.SCRIPTS.clear()
 
 
 def record(tmp_path, *flags: str, device: str = "kitbench_replay_arm", robot: str = "so101", seed: int = 0,

@@ -13,20 +13,11 @@ import pytest
 
 import tests.teleop_devices as devices
 from kitbench.registration import task_entry
+from tests.teleop_devices import scripted_keys  # noqa: F401  (autouse: every test's scripted keys)
 from tests.test_teleop_record import LIFT, episodes, error_line, expert, frames, record
 
 SO101_LIMIT = task_entry(LIFT).env_class.episode_steps("so101")  # 100
 FAST = ("--policy-option", "realtime=false")
-
-
-@pytest.fixture(autouse=True)
-def scripted_keys(monkeypatch):
-    from lerobot.utils import keyboard_input
-
-    monkeypatch.setattr(keyboard_input, "create_key_listener", devices.key_listener)
-    devices.SCRIPTS.clear()
-    yield
-    devices.SCRIPTS.clear()
 
 
 @pytest.fixture(scope="module")

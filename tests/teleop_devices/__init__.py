@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import pytest
 from lerobot.teleoperators import Teleoperator
 
 from tests.teleop_devices.config_replay import ReplayArmConfig, ReplayGamepadConfig, ReplayPhoneConfig
@@ -139,3 +140,15 @@ class ReplayPhone(_Replay):
     @property
     def action_features(self) -> dict:
         return {"phone.pos": object, "phone.rot": object, "phone.raw_inputs": dict, "phone.enabled": bool}
+
+
+@pytest.fixture(autouse=True)
+def scripted_keys(monkeypatch):
+    """lerobot's key listener, as the episode keys start it, keeps its dispatch for the scripts' key presses; each
+    test starts with no scripts. Autouse in a test module that imports it."""
+    from lerobot.utils import keyboard_input
+
+    monkeypatch.setattr(keyboard_input, "create_key_listener", key_listener)
+    SCRIPTS.clear()
+    yield
+    SCRIPTS.clear()
