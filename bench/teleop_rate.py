@@ -200,7 +200,12 @@ def main() -> int:
     parser.add_argument("--tasks", default="LiftPegUpright-v1,AssemblingKits-v1")
     parser.add_argument("--obs-mode", default="rgb")
     parser.add_argument("--display", default="rerun", choices=("rerun", "none"))
-    parser.add_argument("--scene", type=int, default=None, help="the view's third-person image, pixels (0: none)")
+    parser.add_argument(
+        "--scene",
+        type=int,
+        default=None,
+        help="the view's third-person image, pixels (0: none; default: the teleop source's, none beside cameras)",
+    )
     parser.add_argument("--keep", type=Path, default=None, help="keep the datasets and .rrd files in this folder")
     args = parser.parse_args()
     folder = args.keep or Path(tempfile.mkdtemp(prefix="kitbench-teleop-rate-"))

@@ -84,3 +84,28 @@ def test_lerobot_records_view_of_the_simulated_arm_has_its_cameras_and_actions(t
         ("wrist", ("observation.wrist",)),
     ]
     assert {"observation.front", "observation.wrist", "action.shoulder_pan.pos"} <= entities(rrd)
+
+
+def _shown_entities(tmp_path: Path, obs_mode: str, scene_size: int | None) -> set[str]:
+    rrd = tmp_path / f"{obs_mode}-{scene_size}.rrd"
+    env = make_env(LIFT, obs_mode=obs_mode, control_mode="pd_joint_pos", robot_uids="so101", render_mode="rgb_array")
+    view = RerunView(None, None, rrd, scene_size=scene_size)
+    view.open()
+    try:
+        obs, _ = env.reset(seed=0)
+        view.episode(env, 0)
+        view.show(env, obs, None)
+    finally:
+        view.close()
+        env.close()
+    return {e for e in entities(rrd) if e.startswith("observation.images.")}
+
+
+def test_the_third_person_view_is_shown_by_default_only_where_no_camera_is(tmp_path, needs_vulkan):
+    """A third render a step would break the 20 Hz pacing of a camera recording on 2 cores (docs/teleoperation.md):
+    by default a state recording gets the scene, a camera recording its cameras; asked for, both."""
+    scene = "observation.images.scene"
+    assert _shown_entities(tmp_path, "state", None) == {scene}
+    assert _shown_entities(tmp_path, "rgb", None) == {"observation.images.front", "observation.images.wrist"}
+    assert scene in _shown_entities(tmp_path, "rgb", 64)
+    assert _shown_entities(tmp_path, "state", 0) == set()

@@ -22,8 +22,9 @@ class TeleopOptions:
     display_port: int | None = None
     # An .rrd file to write the Rerun view to instead (a machine without a display; `rerun <file>` opens it).
     display_save: str | None = None
-    # The Rerun view's third-person image, pixels square (0: none).
-    display_scene: int = 192
+    # The Rerun view's third-person image, pixels square (0: none; None: 192 where the observation has no camera
+    # image, else none: a third render a step breaks the 20 Hz pacing on 2 CPU cores, docs/teleoperation.md).
+    display_scene: int | None = None
     # Step at the task's control rate in wall-clock time (false: as fast as the device answers).
     realtime: bool = True
     # End-effector deltas: the TCP's speed at full deflection, m/s.
@@ -72,7 +73,7 @@ def split_options(options: dict[str, Any]) -> tuple[TeleopOptions, dict[str, Any
         if name in own:
             _number(name, own[name], 1e-9)
     for name in ("align", "display_scene"):
-        if name in own:
+        if own.get(name) is not None:
             _number(name, own[name], 0, integer=name == "display_scene")
     if "display_port" in own:
         _number("display_port", own["display_port"], 1, integer=True)

@@ -23,6 +23,7 @@ DISPLAYS = ("none", "rerun", "sapien")
 SCENE = f"{IMAGES}scene"  # the third-person view, beside the cameras
 SHOWN_TEXTURES = ("rgb", "depth")  # what lerobot's Rerun logging draws (a segmentation is ids, not an image)
 # The third-person camera: over the table's far corner, on the workspace every task keeps near the origin.
+SCENE_SIZE = 192  # the third-person view's default, pixels square
 SCENE_EYE, SCENE_TARGET, SCENE_FOV = (0.55, 0.55, 0.55), (-0.05, 0.0, 0.1), 1.0
 
 
@@ -76,9 +77,10 @@ def _scene_camera(env: KitbenchEnv, size: int):
 
 class RerunView:
     """lerobot's Rerun display: a spawned viewer, a Rerun server at `ip`:`port`, or an .rrd file (`save`) for a
-    machine without a display. The third-person view is `scene_size` pixels square (0: none)."""
+    machine without a display. The third-person view is `scene_size` pixels square (0: none; None: `SCENE_SIZE`
+    where the observation shows no camera image, else none)."""
 
-    def __init__(self, ip: str | None, port: int | None, save: Path | None, scene_size: int):
+    def __init__(self, ip: str | None, port: int | None, save: Path | None, scene_size: int | None):
         self.ip, self.port, self.save, self.scene_size = ip, port, save, scene_size
         self.camera = None
         self.state_names: list[str] = []
@@ -100,11 +102,12 @@ class RerunView:
     def episode(self, env: KitbenchEnv, seed: int) -> None:
         import rerun as rr
 
-        self.camera = _scene_camera(env, self.scene_size) if self.scene_size else None
         features = observation_features(env)
         self.state_names = list(features[STATE]["names"])
         self.action_names = action_names(env)
         images = [name for name in features if (t := texture_of(name, IMAGES)) is not None and t.name in SHOWN_TEXTURES]
+        size = self.scene_size if self.scene_size is not None else (0 if images else SCENE_SIZE)
+        self.camera = _scene_camera(env, size) if size else None
         layout.send(self.state_names, self.action_names, images + ([SCENE] if self.camera is not None else []))
         rr.set_time("frame", sequence=self.frame)
         rr.log("episode", rr.TextLog(f"{env.task_id} seed {seed}"))
@@ -182,7 +185,7 @@ class SapienView:
             self.viewer = None
 
 
-def make_view(display: str, ip: str | None, port: int | None, save: Path | None, scene_size: int) -> View:
+def make_view(display: str, ip: str | None, port: int | None, save: Path | None, scene_size: int | None) -> View:
     if display == "rerun":
         return RerunView(ip, port, save, scene_size)
     if display == "sapien":
