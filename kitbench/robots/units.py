@@ -43,13 +43,12 @@ class JointUnits:
     def state_names(self, spec: RobotSpec) -> tuple[str, ...]:
         """LeRobot's `observation.state`: the arm's joints, the gripper, body joints, base x, y, yaw."""
         gripper = f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper_opening"
-        names = (*(f"{j}{self.suffix}" for j in spec.arm_joints), gripper, *spec.body_joints)
+        names = (*self.joint_names(spec), gripper, *spec.body_joints)
         return (*names, "base_x", "base_y", "base_yaw") if spec.has_base else names
 
-    def joint_action_names(self, spec: RobotSpec, mode: str) -> list[str]:
-        """The arm part's names in a joint mode: the joints (absolute) or `delta_<joint>`."""
-        prefix = "" if mode == "pd_joint_pos" else "delta_"
-        return [f"{prefix}{j}{self.suffix}" for j in spec.arm_joints]
+    def joint_names(self, spec: RobotSpec) -> list[str]:
+        """The arm's joints as these units name them (a joint mode's action names build on them)."""
+        return [f"{j}{self.suffix}" for j in spec.arm_joints]
 
     def gripper_action_name(self, spec: RobotSpec) -> str:
         return f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper"

@@ -106,7 +106,7 @@ class JointMapping:
         self.joint_action = joint_action
         spec = env.robot_spec
         units = spec.units
-        self.arm_keys = [f"{joint}{units.suffix}" for joint in spec.arm_joints]
+        self.arm_keys = units.joint_names(spec)
         self.jaw_key = units.gripper_action_name(spec) if units.gripper_percent else None
         self.per_radian = units.per_radian
         self.limits = np.asarray(env.robot.arm_limits, dtype=np.float64)
@@ -118,7 +118,7 @@ class JointMapping:
         spec = env.robot_spec
         units = spec.units
         jaw = [units.gripper_action_name(spec)] if units.gripper_percent else []
-        return [f"{joint}{units.suffix}" for joint in spec.arm_joints] + jaw
+        return units.joint_names(spec) + jaw
 
     def reset(self, env: KitbenchEnv) -> None:
         """Nothing: a leader arm holds no state between steps."""
