@@ -11,10 +11,10 @@ import pytest
 from sapien import physx
 
 import kitbench  # noqa: F401  (registers the tasks)
+from kitbench.control.controllers import controller_class
 from kitbench.metadata import RECORDING_FILE
 from kitbench.policies.expert import ExpertPolicy
 from kitbench.recording.config import RecordConfig, validate
-from kitbench.recording.noise import NOISE_UNITS
 from kitbench.recording.rollout import run_episode
 
 LPU = "kitbench/LiftPegUpright-v1"
@@ -32,7 +32,7 @@ def test_noise_perturbs_executed_actions_and_keeps_clean_labels(mode):
     arm = slice(0, labels.shape[1] - 1)
     noise = (executed - labels)[:, arm]
     # a unit in the action's own units (ManiSkill's normalised deltas: 0.02 rad is 0.2)
-    unit = np.asarray(NOISE_UNITS[mode]) * env.unwrapped.arm_action_scale()
+    unit = np.asarray(controller_class(mode).noise_units) * env.unwrapped.arm_action_scale()
     assert np.all(np.abs(noise).max(axis=0) > 0)  # every arm dimension is perturbed
     # clipping at the action box only shrinks noise, so its spread is at most the unit and not far below it
     assert np.all(noise.std(axis=0) < 1.3 * unit) and np.all(noise.std(axis=0) > 0.5 * unit)

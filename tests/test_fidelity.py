@@ -16,7 +16,7 @@ import pytest
 
 import kitbench  # noqa: F401  (registers the tasks)
 from bench.fidelity import FIXTURE_EPISODES, FIXTURE_MODES, load_episodes, replay_in_kitbench, replay_mode, tilt_deg
-from kitbench.control.controllers import CONTROL_MODES, TARGET_DELTA_MODES, make_controller
+from kitbench.control.controllers import CONTROL_MODES, make_controller
 from kitbench.errors import KitbenchError
 from kitbench.planning.phases import CLOSED, OPEN
 from kitbench.policies.joint_targets import joint_target_to_action
@@ -125,5 +125,5 @@ def test_decode_and_encode_are_inverse(mode):
     for _ in range(20):
         action = rng.uniform(space.low[:-1], space.high[:-1]) * (0.2 if mode == "pd_ee_pose" else 0.5)
         np.testing.assert_allclose(controller.encode(controller.decode(action)), action, atol=1e-9)
-    if mode in TARGET_DELTA_MODES or mode in ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose"):
+    if controller.delta:
         np.testing.assert_allclose(controller.decode(np.ones(space.shape[0] - 1))[:3], 0.1)

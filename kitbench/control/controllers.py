@@ -29,28 +29,31 @@ than `MAX_JOINT_LEAD` / `MAX_POS_LEAD` / `MAX_ROT_LEAD`. Rotation deltas turn th
 base frame's, centred at the TCP. `pd_ee_delta_pos` keeps the orientation last
 commanded: its action has no rotation, and a target built on the measured orientation would keep whatever a
 contact or the drives' tracking error did to it instead of restoring it.
+
+Each controller class describes its mode once, in `Controller`'s class attributes (frame, delta or target, action
+names, units, noise units); the env's action names and units, action noise, the teleop mappings and the
+joint-target expression read them (`controller_class`), so a new mode is one new class.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium import spaces
 from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
+from kitbench.control.noise_units import JOINT_UNIT, POSITION_UNIT, ROTATION_UNIT
 from kitbench.errors import KitbenchError
 from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 
 if TYPE_CHECKING:  # importing it loads mink and MuJoCo, which joint modes never need
     from kitbench.control.kinematics import ArmKinematics
 
-# the modes whose action changes the measured state / the previous target
-MEASURED_DELTA_MODES = ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose")
-TARGET_DELTA_MODES = ("pd_joint_target_delta_pos", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose")
-JOINT_DELTA_MODES = ("pd_joint_delta_pos", "pd_joint_target_delta_pos")
+JOINTS = "joints"  # a mode's arm part is one entry per arm joint
+BASE = "base"  # a mode's arm part is the TCP's, in the robot's base frame
 # twice the lag of ManiSkill's gains at 2 rad/s (0.2 rad): at 0.2 the LiftPegUpright expert lost all 40 swings in
 # pd_joint_target_delta_pos
 MAX_JOINT_LEAD = 0.4  # rad
@@ -89,10 +92,25 @@ class Controller:
 
     `action_space` is the action's box as ManiSkill has it; `physical_space` the same action in radians, metres
     and axis-angle vectors, which `arm_targets` takes; `decode` and `encode` turn the arm part of one into the other
-    (the gripper's command is the same in both)."""
+    (the gripper's command is the same in both). The class attributes describe the mode; a JOINTS mode gives one
+    unit and one noise unit for every joint, whatever their number."""
 
-    mode: str
+    mode: str  # ManiSkill's name for it
+    frame: str  # JOINTS or BASE
+    delta: bool  # the arm part moves the target by its amount (else it is the target)
+    target_delta: bool = False  # a delta from the previous target (else from the measured state)
+    turns: bool = False  # the arm part rotates the TCP (its last three entries)
+    tcp_names: tuple[str, ...] = ()  # a BASE mode's arm entries
+    units: tuple[str, ...]  # each arm entry's physical unit
+    noise_units: tuple[float, ...]  # each arm entry's noise unit, in `units` (`kitbench.control.noise_units`)
     physical_space: spaces.Box
+
+    @classmethod
+    def action_names(cls, joint_names: Sequence[str]) -> list[str]:
+        """The arm part's names, given the names of the robot's arm joints (a joint delta: `delta_<joint>`)."""
+        if cls.frame == BASE:
+            return list(cls.tcp_names)
+        return [f"delta_{j}" if cls.delta else j for j in joint_names]
 
     @property
     def action_space(self) -> spaces.Box:
@@ -159,6 +177,29 @@ class Controller:
         finally:
             self._joint_target, self.tcp_target = saved
 
+    def joint_action(self, arm_target: np.ndarray, arm_qpos: np.ndarray) -> np.ndarray:
+        """The arm part (physical units) that drives the arm to the joint positions `arm_target` from `arm_qpos`: a
+        delta is taken from what the mode applies it to, so the action reproduces the target where it fits the box."""
+        if self.frame == BASE:
+            return self.tcp_action(self.kinematics.tcp_pose(arm_target), arm_qpos)
+        if not self.delta:
+            return arm_target
+        return arm_target - (self.joint_target if self.target_delta else arm_qpos)
+
+    def tcp_action(self, target: np.ndarray, arm_qpos: np.ndarray) -> np.ndarray:
+        """The arm part (physical units) of a BASE mode that drives the TCP to `target` (4x4) from `arm_qpos`."""
+        if self.frame != BASE:
+            raise ValueError(f"{self.mode} commands the arm's joints, not its TCP")
+        if not self.delta:
+            return pose_to_ee_action(target)
+        previous = self.tcp_target if self.target_delta else None
+        if previous is None:
+            previous = self.kinematics.tcp_pose(arm_qpos)
+        arm = target[:3, 3] - previous[:3, 3]
+        if self.turns:
+            arm = np.concatenate([arm, matrix_to_axis_angle(target[:3, :3] @ previous[:3, :3].T)])
+        return arm
+
     def _clip_to_limits(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.arm_limits[:, 0], self.arm_limits[:, 1])
 
@@ -171,6 +212,8 @@ class Controller:
 
 class _Normalised(Controller):
     """A delta mode: ManiSkill's action in [-1, 1], `DELTA_BOUND` a unit."""
+
+    delta = True
 
     @functools.cached_property
     def action_space(self) -> spaces.Box:  # built once: the env reads it every step
@@ -191,6 +234,9 @@ class JointDeltaPos(_Normalised):
     """Joint deltas from the measured joint positions."""
 
     mode = "pd_joint_delta_pos"
+    frame = JOINTS
+    units = ("rad",)
+    noise_units = (JOINT_UNIT,)
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
@@ -206,6 +252,7 @@ class JointTargetDeltaPos(JointDeltaPos):
     """Joint deltas accumulated on the previous joint target (at most `MAX_JOINT_LEAD` ahead of the joints)."""
 
     mode = "pd_joint_target_delta_pos"
+    target_delta = True
 
     def arm_targets(self, arm_action, arm_qpos):
         target = np.clip(self.joint_target + arm_action, arm_qpos - MAX_JOINT_LEAD, arm_qpos + MAX_JOINT_LEAD)
@@ -215,6 +262,10 @@ class JointTargetDeltaPos(JointDeltaPos):
 
 class JointPos(Controller):
     mode = "pd_joint_pos"
+    frame = JOINTS
+    delta = False
+    units = ("rad",)
+    noise_units = (JOINT_UNIT,)
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
@@ -226,15 +277,15 @@ class JointPos(Controller):
 
 
 class _EEDelta(_Normalised):
-    """Shared by the delta end-effector modes: the delta applies to the measured TCP pose, or (`accumulate`) to
+    """Shared by the delta end-effector modes: the delta applies to the measured TCP pose, or (`target_delta`) to
     the previous TCP target with a bounded lead over the measured TCP."""
 
-    accumulate = False
+    frame = BASE
 
     def _delta_target(self, translation, rotation, arm_qpos) -> np.ndarray:
         measured = self.kinematics.tcp_pose(arm_qpos)
         previous = self.tcp_target
-        target = (previous if self.accumulate and previous is not None else measured).copy()
+        target = (previous if self.target_delta and previous is not None else measured).copy()
         target[:3, 3] = np.clip(
             target[:3, 3] + translation, measured[:3, 3] - MAX_POS_LEAD, measured[:3, 3] + MAX_POS_LEAD
         )
@@ -247,6 +298,9 @@ class _EEDelta(_Normalised):
 
 class EEDeltaPos(_EEDelta):
     mode = "pd_ee_delta_pos"
+    tcp_names = ("dx", "dy", "dz")
+    units = ("m",) * 3
+    noise_units = (POSITION_UNIT,) * 3
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
@@ -258,11 +312,15 @@ class EEDeltaPos(_EEDelta):
 
 class EETargetDeltaPos(EEDeltaPos):
     mode = "pd_ee_target_delta_pos"
-    accumulate = True
+    target_delta = True
 
 
 class EEDeltaPose(_EEDelta):
     mode = "pd_ee_delta_pose"
+    turns = True
+    tcp_names = ("dx", "dy", "dz", "drx", "dry", "drz")
+    units = ("m",) * 3 + ("rad",) * 3
+    noise_units = (POSITION_UNIT,) * 3 + (ROTATION_UNIT,) * 3
 
     def __init__(self, arm_limits, kinematics_factory):
         super().__init__(arm_limits, kinematics_factory)
@@ -285,11 +343,17 @@ class EEDeltaPose(_EEDelta):
 
 class EETargetDeltaPose(EEDeltaPose):
     mode = "pd_ee_target_delta_pose"
-    accumulate = True
+    target_delta = True
 
 
 class EEPose(Controller):
     mode = "pd_ee_pose"
+    frame = BASE
+    delta = False
+    turns = True
+    tcp_names = ("x", "y", "z", "rx", "ry", "rz")
+    units = ("m",) * 3 + ("rad",) * 3
+    noise_units = (POSITION_UNIT,) * 3 + (ROTATION_UNIT,) * 3
 
     def __init__(self, arm_limits, kinematics_factory, position_bound: float = 2.0):
         """`position_bound`: the position box (m) around the base frame's origin (ManiSkill's Panda: 2 m)."""
@@ -338,14 +402,25 @@ _CONTROLLERS = {
 CONTROL_MODES = tuple(_CONTROLLERS)
 
 
+def controller_class(mode: str) -> type[Controller]:
+    """The class that controls and describes `mode`."""
+    if mode not in _CONTROLLERS:
+        raise KitbenchError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
+    return _CONTROLLERS[mode]
+
+
+def modes_where(test: Callable[[type[Controller]], bool]) -> tuple[str, ...]:
+    """The control modes, in `CONTROL_MODES`' order, whose controller class passes `test`."""
+    return tuple(mode for mode, cls in _CONTROLLERS.items() if test(cls))
+
+
 def make_controller(
     mode: str,
     arm_limits: np.ndarray,
     kinematics_factory: Callable[[], ArmKinematics],
     position_bound: float = 2.0,
 ) -> Controller:
-    if mode not in _CONTROLLERS:
-        raise KitbenchError(f"unknown control_mode {mode!r}; valid choices: {', '.join(CONTROL_MODES)}")
-    if mode == EEPose.mode:
+    cls = controller_class(mode)
+    if cls is EEPose:
         return EEPose(arm_limits, kinematics_factory, position_bound)
-    return _CONTROLLERS[mode](arm_limits, kinematics_factory)
+    return cls(arm_limits, kinematics_factory)

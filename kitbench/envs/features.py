@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kitbench.control.controllers import controller_class
 from kitbench.envs.modalities import TEXTURES, texture_of
 from kitbench.envs.modes import POINTCLOUD, camera_textures
 from kitbench.envs.pointcloud import DEFAULT_POINTS, PointSampler
@@ -106,14 +107,6 @@ DEPTH_ENCODING = {
     "extra_options": {"x265-params": "lossless=1:log-level=error"},
 }
 
-# The arm part of each end-effector mode's action; joint modes name the robot's arm joints (`action_names`).
-EE_ACTION_NAMES = {
-    "pd_ee_delta_pos": ["dx", "dy", "dz"],
-    "pd_ee_target_delta_pos": ["dx", "dy", "dz"],
-    "pd_ee_delta_pose": ["dx", "dy", "dz", "drx", "dry", "drz"],
-    "pd_ee_target_delta_pose": ["dx", "dy", "dz", "drx", "dry", "drz"],
-    "pd_ee_pose": ["x", "y", "z", "rx", "ry", "rz"],
-}
 STATE = "observation.state"
 ENVIRONMENT_STATE = "observation.environment_state"
 IMAGES = "observation.images."
@@ -223,13 +216,12 @@ def as_loaded(frame: dict[str, np.ndarray], depth_unit: str = "mm") -> dict[str,
 
 
 def action_names(env) -> list[str]:
-    """One name per action entry: the arm part of the env's control mode (joint modes: the joints, or
-    `delta_<joint>`), the gripper, then the robot's body joint deltas and base velocities (`kitbench.robots.spec`),
-    as the robot's units name them (the SO-101: `shoulder_pan.pos`, ..., `gripper.pos`)."""
+    """One name per action entry: the arm part of the env's control mode (`Controller.action_names`: joint modes
+    name the joints, or `delta_<joint>`), the gripper, then the robot's body joint deltas and base velocities
+    (`kitbench.robots.spec`), as the robot's units name them (the SO-101: `shoulder_pan.pos`, ..., `gripper.pos`)."""
     u = env.unwrapped
     spec = u.robot_spec
-    mode = u.control_mode
-    arm = EE_ACTION_NAMES[mode] if mode in EE_ACTION_NAMES else spec.units.joint_action_names(spec, mode)
+    arm = controller_class(u.control_mode).action_names(spec.units.joint_names(spec))
     return [*arm, spec.units.gripper_action_name(spec), *spec.extra_action_names]
 
 

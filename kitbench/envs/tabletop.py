@@ -26,7 +26,7 @@ import numpy as np
 import sapien
 from gymnasium import spaces
 
-from kitbench.control.controllers import CONTROL_MODES, make_controller
+from kitbench.control.controllers import CONTROL_MODES, JOINTS, make_controller
 from kitbench.control.kinematics import ArmKinematics, arm_joint_limits
 from kitbench.envs.grasp import GraspHistory
 from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, POINTCLOUD, REWARD_MODES, camera_textures
@@ -424,8 +424,8 @@ class TabletopEnv(gym.Env, abc.ABC):
         robot's units."""
         spec = self._robot_spec
         controller = self.controller
-        space = controller.physical_space if spec.units.expresses(self.control_mode) else controller.action_space
-        arm_low, arm_high = spec.units.action_bounds(spec, self.control_mode, self._n_arm, space.low, space.high)
+        space = controller.physical_space if spec.units.expresses(self._joints) else controller.action_space
+        arm_low, arm_high = spec.units.action_bounds(spec, self._joints, self._n_arm, space.low, space.high)
         low, high = spec.extra_action_bounds()
         return spaces.Box(np.concatenate([arm_low, low]), np.concatenate([arm_high, high]), dtype=np.float32)
 
@@ -434,32 +434,37 @@ class TabletopEnv(gym.Env, abc.ABC):
         """Entries of the action's arm part (before the gripper)."""
         return self.controller.physical_space.shape[0] - 1
 
+    @property
+    def _joints(self) -> bool:
+        """Whether the mode's arm part is the arm's joints (which a robot's units may express)."""
+        return self.controller.frame == JOINTS
+
     def action_to_sim(self, action: np.ndarray) -> np.ndarray:
         """An action as the action space has it (ManiSkill's form, `Controller.decode`, or the robot's units where
         they express the mode: `RobotSpec.units`) to the simulation's: the arm part in radians, metres and
         axis-angle vectors, the gripper a command from -1 (closed) to 1 (open)."""
-        spec, mode, n = self._robot_spec, self.control_mode, self._n_arm
-        out = np.array(spec.units.action_to_sim(spec, mode, n, action), dtype=np.float64)
-        if not spec.units.expresses(mode):
+        spec, joints, n = self._robot_spec, self._joints, self._n_arm
+        out = np.array(spec.units.action_to_sim(spec, joints, n, action), dtype=np.float64)
+        if not spec.units.expresses(joints):
             out[:n] = self.controller.decode(out[:n])
         out[n + 1 :] /= spec.extra_action_scale()
         return out
 
     def action_from_sim(self, action: np.ndarray) -> np.ndarray:
         """`action_to_sim`'s inverse: an action in the simulation's units to the action space's (unclipped)."""
-        spec, mode, n = self._robot_spec, self.control_mode, self._n_arm
+        spec, joints, n = self._robot_spec, self._joints, self._n_arm
         out = np.array(action, dtype=np.float64)
-        if not spec.units.expresses(mode):
+        if not spec.units.expresses(joints):
             out[:n] = self.controller.encode(out[:n])
         out[n + 1 :] *= spec.extra_action_scale()
-        return spec.units.action_from_sim(spec, mode, n, out).astype(np.asarray(action).dtype)
+        return spec.units.action_from_sim(spec, joints, n, out).astype(np.asarray(action).dtype)
 
     def arm_action_scale(self) -> np.ndarray:
         """Action units per simulation unit of each arm entry (a joint's degrees, a normalised delta's 10 per rad
         or m): noise sized in simulation units is this much in the action."""
-        spec, mode = self._robot_spec, self.control_mode
-        if spec.units.expresses(mode):
-            return np.full(self._n_arm, spec.units.joint_unit(mode))
+        spec, joints = self._robot_spec, self._joints
+        if spec.units.expresses(joints):
+            return np.full(self._n_arm, spec.units.joint_unit(joints))
         return self.controller.scale()
 
     def _apply(self, action: np.ndarray) -> None:

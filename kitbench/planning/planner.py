@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from kitbench.control.controllers import JOINT_DELTA_MODES, MEASURED_DELTA_MODES
+from kitbench.control.controllers import JOINTS
 from kitbench.control.kinematics import ArmKinematics
 from kitbench.errors import KitbenchError
 from kitbench.planning.ik import ArmIK, TimedPath
@@ -82,9 +82,10 @@ class PhasePlanner(ABC):
         self.n_arm = len(spec.arm_joints)
         self.max_velocity = self.cfg.speed_factor * np.asarray(spec.arm_velocity_limits)
         self.max_acceleration = self.cfg.speed_factor * np.asarray(spec.arm_acceleration_limits)
-        if self.env.control_mode in JOINT_DELTA_MODES:  # their actions move a joint at most this far per step
-            fraction = MEASURED_DELTA_TRACKING if self.env.control_mode in MEASURED_DELTA_MODES else 0.98
-            step_limit = self.env.controller.physical_space.high[: self.n_arm].astype(np.float64) * fraction
+        controller = self.env.controller
+        if controller.frame == JOINTS and controller.delta:  # their actions move a joint at most this far per step
+            fraction = 0.98 if controller.target_delta else MEASURED_DELTA_TRACKING
+            step_limit = controller.physical_space.high[: self.n_arm].astype(np.float64) * fraction
             self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
         kinematics = ArmKinematics(spec)
         kinematics.set_body(self.env.robot.body_qpos())

@@ -1,17 +1,16 @@
 """Express a joint-position target in any control mode, so a planner written for one mode drives them all.
 
-A delta is taken from what the mode applies it to: the measured joints or TCP (`pd_*_delta_*`), or the
-controller's previous target (`pd_*_target_delta_*`). The action then reproduces the planner's target exactly
-whenever it fits in the mode's action box (delta modes clip larger steps; the closed-loop planner then adapts).
+A delta is taken from what the mode applies it to (`Controller.joint_action`): the measured joints or TCP
+(`pd_*_delta_*`), or the controller's previous target (`pd_*_target_delta_*`). The action then reproduces the
+planner's target exactly whenever it fits in the mode's action box (delta modes clip larger steps; the closed-loop
+planner then adapts).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from kitbench.control.controllers import JOINT_DELTA_MODES, TARGET_DELTA_MODES, pose_to_ee_action
 from kitbench.envs.interface import as_kitbench
-from kitbench.geometry import matrix_to_axis_angle
 
 
 def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bool = True) -> np.ndarray:
@@ -19,25 +18,7 @@ def joint_target_to_action(env, arm_target: np.ndarray, gripper: float, clip: bo
     the gripper at `gripper` (a command, -1 closed .. 1 open), clipped to the action box unless `clip` is False
     (then it says how far outside the box the target lies)."""
     u = as_kitbench(env)
-    mode = u.control_mode
-    controller = u.controller
-    if mode == "pd_joint_pos":
-        arm = arm_target
-    elif mode in JOINT_DELTA_MODES:
-        base = controller.joint_target if mode in TARGET_DELTA_MODES else u.robot.arm_qpos()
-        arm = arm_target - base
-    else:
-        kin = controller.kinematics
-        target = kin.tcp_pose(arm_target)
-        if mode == "pd_ee_pose":
-            arm = pose_to_ee_action(target)
-        else:
-            previous = controller.tcp_target if mode in TARGET_DELTA_MODES else None
-            if previous is None:
-                previous = kin.tcp_pose(u.robot.arm_qpos())
-            arm = target[:3, 3] - previous[:3, 3]
-            if mode.endswith("_pose"):
-                arm = np.concatenate([arm, matrix_to_axis_angle(target[:3, :3] @ previous[:3, :3].T)])
+    arm = u.controller.joint_action(arm_target, u.robot.arm_qpos())
     # the robot's body joints and base (if any) hold still: zero deltas, zero velocities
     extra = np.zeros(len(u.robot_spec.extra_action_names))
     action = u.action_from_sim(np.concatenate([arm, [gripper], extra]).astype(np.float32))

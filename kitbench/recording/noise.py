@@ -5,7 +5,7 @@ the label. The expert is closed loop (each action is planned from the simulated 
 from wherever the previous one ended), so the labels show how to get back on track from states a noise-free
 expert never visits: the states a learned policy drifts into.
 
-`scale` is a multiple of the control mode's noise unit (`NOISE_UNITS`), so one setting means a comparable
+`scale` is a multiple of the control mode's noise unit (`Controller.noise_units`), so one setting means a comparable
 disturbance in every mode: ~0.02 rad per arm joint. The gripper gets no noise: flipping it is not a small
 deviation to recover from but a different action.
 """
@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from kitbench.control.noise_units import NOISE_UNITS, noise_std
+from kitbench.control.noise_units import noise_std
 from kitbench.envs.interface import KitbenchEnv
 from kitbench.errors import KitbenchError
 
@@ -46,4 +46,4 @@ class ActionNoise:
         return np.clip(noisy, self.low, self.high).astype(np.float32)
 
 
-__all__ = ["NOISE_UNITS", "ActionNoise", "check_noise_scale"]
+__all__ = ["ActionNoise", "check_noise_scale"]

@@ -51,13 +51,14 @@ class SourceRecording:
         opposite sign (+1 closed; a jaw in percent was already 100 open), its body and base entries unscaled."""
         if self.info.action_convention == ACTION_CONVENTION:
             return actions
-        from kitbench.control.controllers import make_controller
+        from kitbench.control.controllers import JOINTS, controller_class, make_controller
         from kitbench.control.kinematics import ArmKinematics
 
         spec, mode = ROBOTS[self.info.robot_uid], self.info.control_mode
         gripper = actions.shape[1] - 1 - len(spec.extra_action_names)
         out = actions.astype(np.float64)
-        if not spec.units.expresses(mode):  # then in ManiSkill's form: normalised deltas, Euler rotations
+        joints = controller_class(mode).frame == JOINTS
+        if not spec.units.expresses(joints):  # then in ManiSkill's form: normalised deltas, Euler rotations
             controller = make_controller(
                 mode, np.zeros((len(spec.arm_joints), 2)), functools.partial(ArmKinematics, spec)
             )

@@ -9,7 +9,8 @@ arm's layout. The env converts at its boundary (`TabletopEnv.action_to_sim`, `ac
 `SI` robots' actions are ManiSkill's (delta modes normalised to [-1, 1]); `SO_FOLLOWER`'s joint actions (absolute
 and deltas) take the joint unit, and its end-effector actions are ManiSkill's, having no motor to speak for. A
 robot in `SO_FOLLOWER` units commands its jaw's position (0..100) in every mode, as the
-real arm's leader does; its body joints and base, if it had any, would stay in SI.
+real arm's leader does; its body joints and base, if it had any, would stay in SI. Which modes are joint modes
+the controllers say (`Controller.frame`): the callers pass `joints`, as this package sits below them.
 """
 
 from __future__ import annotations
@@ -22,8 +23,6 @@ import numpy as np
 
 if TYPE_CHECKING:
     from kitbench.robots.spec import RobotSpec
-
-JOINT_MODES = ("pd_joint_pos", "pd_joint_delta_pos", "pd_joint_target_delta_pos")
 
 
 @dataclass(frozen=True)
@@ -43,20 +42,20 @@ class JointUnits:
     def state_names(self, spec: RobotSpec) -> tuple[str, ...]:
         """LeRobot's `observation.state`: the arm's joints, the gripper, body joints, base x, y, yaw."""
         gripper = f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper_opening"
-        names = (*(f"{j}{self.suffix}" for j in spec.arm_joints), gripper, *spec.body_joints)
+        names = (*self.joint_names(spec), gripper, *spec.body_joints)
         return (*names, "base_x", "base_y", "base_yaw") if spec.has_base else names
 
-    def joint_action_names(self, spec: RobotSpec, mode: str) -> list[str]:
-        """The arm part's names in a joint mode: the joints (absolute) or `delta_<joint>`."""
-        prefix = "" if mode == "pd_joint_pos" else "delta_"
-        return [f"{prefix}{j}{self.suffix}" for j in spec.arm_joints]
+    def joint_names(self, spec: RobotSpec) -> list[str]:
+        """The arm's joints as these units name them (a joint mode's action names build on them)."""
+        return [f"{j}{self.suffix}" for j in spec.arm_joints]
 
     def gripper_action_name(self, spec: RobotSpec) -> str:
         return f"{self._jaw(spec)}{self.suffix}" if self.gripper_percent else "gripper"
 
-    def expresses(self, mode: str) -> bool:
-        """Whether the arm part of `mode`'s action is in these units (else in ManiSkill's form)."""
-        return self.joint_actions and mode in JOINT_MODES
+    def expresses(self, joints: bool) -> bool:
+        """Whether the arm part of a mode's action is in these units (else in ManiSkill's form); `joints`: whether
+        the mode's arm part is the arm's joints."""
+        return self.joint_actions and joints
 
     # -- values ----------------------------------------------------------------------------------------
     def state(self, spec: RobotSpec, vector: np.ndarray) -> np.ndarray:
@@ -80,41 +79,41 @@ class JointUnits:
             scales[n] = 100.0 / abs(high - low)
         return scales
 
-    def action_to_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
+    def action_to_sim(self, spec: RobotSpec, joints: bool, n_arm: int, action: np.ndarray) -> np.ndarray:
         """An action in these units to the simulation's (radians, gripper command -1..1)."""
         if self is SI:
             return action
         out = np.array(action, dtype=np.float64)
-        if mode in JOINT_MODES:
+        if joints:
             out[:n_arm] /= self.per_radian
         if self.gripper_percent:  # 0..100 spans the command's closed (-1) .. open (1): the jaw's range is both's
             out[n_arm] = out[n_arm] / 50.0 - 1.0
         return out
 
-    def action_from_sim(self, spec: RobotSpec, mode: str, n_arm: int, action: np.ndarray) -> np.ndarray:
+    def action_from_sim(self, spec: RobotSpec, joints: bool, n_arm: int, action: np.ndarray) -> np.ndarray:
         """An action in the simulation's units to these (`action_to_sim`'s inverse)."""
         if self is SI:
             return action
         out = np.array(action, dtype=np.float64)
-        if mode in JOINT_MODES:
+        if joints:
             out[:n_arm] *= self.per_radian
         if self.gripper_percent:  # unclipped: a caller may ask how far out of the box an action lies
             out[n_arm] = 50.0 * (out[n_arm] + 1.0)
         return out.astype(np.asarray(action).dtype)
 
-    def action_bounds(self, spec: RobotSpec, mode: str, n_arm: int, low, high) -> tuple[np.ndarray, np.ndarray]:
+    def action_bounds(self, spec: RobotSpec, joints: bool, n_arm: int, low, high) -> tuple[np.ndarray, np.ndarray]:
         """The action box of a mode (the controller's, in the simulation's units) in these units."""
         lo, hi = np.array(low, dtype=np.float64), np.array(high, dtype=np.float64)
-        if mode in JOINT_MODES:
+        if joints:
             lo[:n_arm] *= self.per_radian
             hi[:n_arm] *= self.per_radian
         if self.gripper_percent:
             lo[n_arm], hi[n_arm] = 0.0, 100.0
         return lo.astype(np.float32), hi.astype(np.float32)
 
-    def joint_unit(self, mode: str) -> float:
-        """Action units per radian of the arm part of `mode` (1 for end-effector modes)."""
-        return self.per_radian if mode in JOINT_MODES else 1.0
+    def joint_unit(self, joints: bool) -> float:
+        """Action units per radian of a mode's arm part (1 for end-effector modes)."""
+        return self.per_radian if joints else 1.0
 
     # -- the jaw ---------------------------------------------------------------------------------------
     @staticmethod

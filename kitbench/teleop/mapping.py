@@ -23,20 +23,18 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from kitbench.control.controllers import TARGET_DELTA_MODES, pose_to_ee_action
+from kitbench.control.controllers import BASE, modes_where
 from kitbench.envs.interface import KitbenchEnv
 from kitbench.errors import KitbenchError
-from kitbench.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+from kitbench.geometry import axis_angle_to_matrix
 from kitbench.robots.spec import CLOSED, OPEN
 
 # (env, arm joint targets in radians, gripper command -1 closed .. 1 open) -> the env's action in its mode; the
 # policies' `joint_target_to_action`, handed in so that this package stays below the policies
 JointAction = Callable[[KitbenchEnv, np.ndarray, float], np.ndarray]
 
-EE_DELTA_MODES = ("pd_ee_delta_pos", "pd_ee_target_delta_pos", "pd_ee_delta_pose", "pd_ee_target_delta_pose")
 DELTA_KEYS = ("delta_x", "delta_y", "delta_z")
 TURN_KEYS = ("delta_pitch", "delta_yaw")
-TURN_MODES = ("pd_ee_delta_pose", "pd_ee_target_delta_pose", "pd_ee_pose")
 PHONE_KEYS = ("phone.pos", "phone.rot", "phone.raw_inputs", "phone.enabled")
 # lerobot's discrete gripper classes (`GamepadTeleop.GripperAction`): 0 close, 1 stay, 2 open
 GRIPPER_CLOSE, GRIPPER_OPEN = 0.5, 1.5
@@ -81,18 +79,8 @@ def commanded_tcp(env: KitbenchEnv) -> np.ndarray:
 def tcp_target_to_action(env: KitbenchEnv, target: np.ndarray, gripper: float) -> np.ndarray:
     """The action of an end-effector mode that drives the TCP to `target` (4x4, base frame) with the gripper at
     `gripper` (-1 closed .. 1 open), in the robot's units, within the action box; deltas are taken from what the
-    mode applies them to, as `joint_target_to_action` takes them."""
-    mode = env.control_mode
-    if mode == "pd_ee_pose":
-        arm = pose_to_ee_action(target)
-    else:
-        previous = env.controller.tcp_target if mode in TARGET_DELTA_MODES else None
-        if previous is None:
-            previous = env.controller.kinematics.tcp_pose(env.robot.arm_qpos())
-        arm = target[:3, 3] - previous[:3, 3]
-        if mode.endswith("_pose"):
-            arm = np.concatenate([arm, matrix_to_axis_angle(target[:3, :3] @ previous[:3, :3].T)])
-    return _in_box(env, arm, gripper)
+    mode applies them to, as `joint_target_to_action` takes them (`Controller.tcp_action`)."""
+    return _in_box(env, env.controller.tcp_action(target, env.robot.arm_qpos()), gripper)
 
 
 def _in_box(env: KitbenchEnv, arm: np.ndarray, gripper: float) -> np.ndarray:
@@ -118,7 +106,7 @@ class JointMapping:
         self.joint_action = joint_action
         spec = env.robot_spec
         units = spec.units
-        self.arm_keys = [f"{joint}{units.suffix}" for joint in spec.arm_joints]
+        self.arm_keys = units.joint_names(spec)
         self.jaw_key = units.gripper_action_name(spec) if units.gripper_percent else None
         self.per_radian = units.per_radian
         self.limits = np.asarray(env.robot.arm_limits, dtype=np.float64)
@@ -130,7 +118,7 @@ class JointMapping:
         spec = env.robot_spec
         units = spec.units
         jaw = [units.gripper_action_name(spec)] if units.gripper_percent else []
-        return [f"{joint}{units.suffix}" for joint in spec.arm_joints] + jaw
+        return units.joint_names(spec) + jaw
 
     def reset(self, env: KitbenchEnv) -> None:
         """Nothing: a leader arm holds no state between steps."""
@@ -172,7 +160,7 @@ class DeltaMapping:
     move the TCP `speed` m/s along the base frame's axes; the orientation holds (the pose modes get no rotation)."""
 
     kind: str = "end-effector deltas"
-    modes: tuple[str, ...] | None = EE_DELTA_MODES
+    modes: tuple[str, ...] | None = modes_where(lambda c: c.frame == BASE and c.delta)
 
     def __init__(self, env: KitbenchEnv, speed: float):
         self.step = speed * env.control_timestep  # metres a control step at full deflection
@@ -184,7 +172,7 @@ class DeltaMapping:
     def action(self, env: KitbenchEnv, device_action: dict[str, Any]) -> np.ndarray:
         arm = np.array([float(device_action.get(k, 0.0)) for k in DELTA_KEYS]) * self.step
         self.gripper = gripper_class(device_action, self.gripper)
-        if env.control_mode.endswith("_pose"):
+        if env.controller.turns:
             arm = np.concatenate([arm, np.zeros(3)])
         return _in_box(env, arm, self.gripper)
 
@@ -203,7 +191,7 @@ class TurnMapping:
     from the TCP the controller was last commanded to; the gripper as lerobot's classes latch it."""
 
     kind: str = "end-effector deltas with the turn"
-    modes: tuple[str, ...] | None = TURN_MODES
+    modes: tuple[str, ...] | None = modes_where(lambda c: c.turns)
 
     def __init__(self, env: KitbenchEnv, speed: float, turn_speed: float):
         self.step = speed * env.control_timestep
@@ -234,7 +222,7 @@ class PhoneMapping:
     `gripper_speed` percent a step per unit (positive opens)."""
 
     kind: str = "phone"
-    modes: tuple[str, ...] | None = (*EE_DELTA_MODES, "pd_ee_pose")
+    modes: tuple[str, ...] | None = modes_where(lambda c: c.frame == BASE)
 
     def __init__(self, env: KitbenchEnv, platform, scale: float, gripper_speed: float):
         from lerobot.teleoperators.phone.phone_processor import MapPhoneActionToRobotAction
