@@ -11,7 +11,7 @@ PYTEST_WORKERS ?= auto
 # What ruff formats and lints (it picks the Python files out of these folders).
 LINT_PATHS := kitbench tests bench studies integrations scripts
 
-.PHONY: demo test lint fmt bench results doctor bootstrap system robot-assets clean
+.PHONY: demo test test-all lint fmt bench results doctor bootstrap system robot-assets clean
 
 system:
 	@bash scripts/bootstrap-system.sh
@@ -43,8 +43,14 @@ lint: bootstrap
 	@$(call step,ruff check,$(VENV)/bin/ruff check $(LINT_PATHS))
 	@$(call step,mypy kitbench,$(VENV)/bin/mypy kitbench)
 
+# `make test`: every test but the cases marked slow (each a further case of a test whose other cases run here);
+# `make test-all` (CI): every case.
+PYTEST := $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder
 test: lint
-	@$(call step,pytest,$(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS))
+	@$(call step,pytest,$(PYTEST) -m "not slow" $(PYTEST_ARGS))
+
+test-all: lint
+	@$(call step,pytest (every case),$(PYTEST) $(PYTEST_ARGS))
 
 # Applies the formatter and ruff's safe fixes; what remains is reported by `make lint`.
 fmt: bootstrap

@@ -93,6 +93,22 @@ LONGEST_FIRST = (
 )
 
 
+def _slow_without_a_twin(items) -> list[str]:
+    """The tests marked `slow` none of whose siblings (the same test function, other parameters) runs in `make test`:
+    a slow case is another case of a behaviour `make test` already guards, never the only one."""
+    fast: set[tuple[str, str]] = set()
+    slow: dict[tuple[str, str], str] = {}
+    for item in items:
+        key = (str(item.path), getattr(item, "originalname", item.name))
+        if item.get_closest_marker("slow"):
+            slow.setdefault(key, item.nodeid)
+        else:
+            fast.add(key)
+    return [nodeid for key, nodeid in slow.items() if key not in fast]
+
+
 def pytest_collection_modifyitems(config, items):
+    if lonely := _slow_without_a_twin(items):
+        raise pytest.UsageError(f"marked slow with no case of theirs left to make test: {', '.join(lonely)}")
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
