@@ -24,7 +24,7 @@ from kitbench.engine.executor import ClusterLost
 from kitbench.env_settings import canonical_size
 from kitbench.envs.interface import as_kitbench
 from kitbench.errors import KitbenchError, one_line
-from kitbench.evaluation.compare import _seeds_text
+from kitbench.evaluation.compare_inputs import seeds_text
 from kitbench.evaluation.config import COMMAND_LINE, EvalConfig
 from kitbench.evaluation.episode import EpisodeResult
 from kitbench.evaluation.journal import EvalJournal
@@ -285,7 +285,7 @@ def _resume_differences(journaled: dict, now: dict) -> list[str]:
     for key in dict.fromkeys([*old_suite, *new_suite]):
         a, b = old_suite.get(key), new_suite.get(key)
         if a != b:
-            shown = (_seeds_text(a or []), _seeds_text(b or [])) if key == "seeds" else (repr(a), repr(b))
+            shown = (seeds_text(a or []), seeds_text(b or [])) if key == "seeds" else (repr(a), repr(b))
             found.append(f"suite {key}: journal {shown[0]}, now {shown[1]}")
     found += outcome_differences(
         {k: journaled.get(k) for k in ("execution", "software")},
