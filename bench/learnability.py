@@ -66,8 +66,8 @@ import kitbench
 from kitbench.config.files import read_settings
 from kitbench.control.controllers import CONTROL_MODES
 from kitbench.errors import KitbenchError
+from kitbench.evaluation.output import REPORT_JSON
 from kitbench.evaluation.plots import error_bars
-from kitbench.evaluation.runner import REPORT_JSON
 from kitbench.evaluation.significance import newcombe_interval
 from kitbench.evaluation.stats import wilson_interval
 from kitbench.evaluation.suite import load_suite

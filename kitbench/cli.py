@@ -75,7 +75,8 @@ def _view(flags: dict) -> int:
 
 def _eval(flags: dict) -> int:
     from kitbench.evaluation.config import eval_config
-    from kitbench.evaluation.runner import run_eval, summary_lines
+    from kitbench.evaluation.output import summary_lines
+    from kitbench.evaluation.runner import run_eval
     from kitbench.shipped import find
 
     if flags.get("suite_file"):  # a shipped suite by its name, or its checkout path from any folder

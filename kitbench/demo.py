@@ -74,7 +74,8 @@ def demo_suite(task: str, episodes: int):
 def run_demo(config: DemoConfig, say=print) -> dict:
     """Returns, per task, the dataset folder and the evaluation reports (policy -> report dict)."""
     from kitbench.evaluation.config import EvalConfig
-    from kitbench.evaluation.runner import run_eval, summary_lines
+    from kitbench.evaluation.output import summary_lines
+    from kitbench.evaluation.runner import run_eval
     from kitbench.recording.recorder import RecordConfig, record
 
     tasks = tuple(canonical_task(t) for t in config.tasks) or tuple(TASKS)

@@ -185,7 +185,8 @@ def _outcomes(
     """The side's headline outcomes on the suite's first `seeds` seeds, and whether its report says them. `read`:
     a resumed race may read them back from the journal (a look replayed); else `kitbench eval --stop-after seeds`
     scores what is missing and writes the report (`begun`: this race has started the side's evaluation)."""
-    from kitbench.evaluation.runner import journaled_results, run_eval
+    from kitbench.evaluation.resume import journaled_results
+    from kitbench.evaluation.runner import run_eval
 
     finished = _finished_report(config) if begun else None
     if finished is not None:  # a side that scored the whole suite before the race was stopped

@@ -20,9 +20,10 @@ from kitbench.engine.config import ExecutorConfig
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.config import EvalConfig, ReportSettings, ScoredPolicy, Selection, eval_config
 from kitbench.evaluation.journal import EvalJournal
+from kitbench.evaluation.output import REPORT_JSON
 from kitbench.evaluation.provenance import checkpoint_files
 from kitbench.evaluation.report import write_json
-from kitbench.evaluation.runner import REPORT_JSON, run_eval
+from kitbench.evaluation.runner import run_eval
 
 
 @dataclass
