@@ -8,6 +8,7 @@ import os
 import random
 import signal
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 
@@ -17,16 +18,61 @@ import pytest
 import kitbench  # noqa: F401
 from kitbench.recording.journal import EpisodeJournal, journal_root
 from kitbench.recording.recorder import RecordConfig, record
+from tests import launch
 from tests.datasets_equal import same_content
 from tests.processes import record_command
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONUNBUFFERED": "1"}
 TASK = "LiftPegUpright-v1"
+# enough episodes that three kills a few episodes apart, and one past ten episodes in one session (LeRobot's episode
+# index on disk beside a data file it still has open), each stop a run that has not finished
+EPISODES = 24
 
 
 def _cli(out: Path, *args: str) -> list[str]:
     return record_command(out, TASK, *args)
+
+
+class Started:
+    """A kitbench command started, not waited for, as a fork of the test's server (`tests.launch`: a process of its
+    own, killed alone by a signal, without a fresh interpreter's seconds of imports); what the tests use of
+    subprocess.Popen: poll, send_signal, wait, communicate (its output as text) and returncode."""
+
+    def __init__(self, cmd: list[str], logs: Path, env: dict[str, str] = ENV, cwd: Path = ROOT):
+        """`cmd` started in `cwd` with `env`, its output in two files in `logs`."""
+        script, args = launch.script_args(cmd) or (None, [])
+        assert script is not None, cmd
+        self._files = []
+        for suffix in (".out", ".err"):
+            fd, path = tempfile.mkstemp(prefix="started-", suffix=suffix, dir=logs)
+            os.close(fd)
+            self._files.append(Path(path))
+        files = [str(f) for f in self._files]
+        self._process = launch._server().Process(target=launch._main, args=(script, args, env, str(cwd), *files))
+        self._process.start()
+
+    @property
+    def returncode(self) -> int | None:
+        return self._process.exitcode
+
+    def poll(self) -> int | None:
+        return self._process.exitcode
+
+    def send_signal(self, signum: int) -> None:
+        os.kill(self._process.pid, signum)
+
+    def wait(self, timeout: float | None = None) -> int | None:
+        self._process.join(timeout)
+        return self._process.exitcode
+
+    def communicate(self, timeout: float | None = None) -> tuple[str, str]:
+        self._process.join(timeout)
+        if self._process.exitcode is None:
+            self._process.kill()
+            self._process.join()
+            raise subprocess.TimeoutExpired(self._process.name, timeout or 0)
+        return self._files[0].read_text(), self._files[1].read_text()
 
 
 def _wait_for_journal(out: Path, count: int, proc: subprocess.Popen, timeout: float = 240.0) -> int:
@@ -56,7 +102,7 @@ def _assert_same_dataset(a: Path, b: Path) -> None:
 def reference(tmp_path_factory) -> Path:
     """An uninterrupted recording that interrupted ones must end up equal to."""
     out = tmp_path_factory.mktemp("reference") / "ds"
-    record(RecordConfig.of(task=TASK, episodes=24, out=out, commit_interval=30.0), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=EPISODES, out=out, commit_interval=30.0), progress=False)
     return out
 
 
@@ -65,9 +111,7 @@ def test_kill_9_loses_at_most_the_episode_in_flight(tmp_path, reference):
     rng = random.Random(7)
     for _ in range(3):  # killed at three moments, resumed each time
         resume = ["--resume"] if out.exists() or journal_root(out).exists() else []
-        proc = subprocess.Popen(
-            _cli(out, "--episodes", "24", *resume), env=ENV, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
-        )
+        proc = Started(_cli(out, "--episodes", str(EPISODES), *resume), tmp_path)
         before = len(EpisodeJournal(out).seeds()) if journal_root(out).exists() else 0
         journaled = _wait_for_journal(out, before + rng.randint(2, 6), proc)
         proc.send_signal(signal.SIGKILL)
@@ -75,11 +119,9 @@ def test_kill_9_loses_at_most_the_episode_in_flight(tmp_path, reference):
         # the 30 s default commit interval has not passed: the journal holds every finished episode
         assert len(EpisodeJournal(out).seeds()) >= journaled
     kept = len(EpisodeJournal(out).seeds()) + (len(_dataset(out)[1]) if out.exists() else 0)
-    done = subprocess.run(
-        _cli(out, "--episodes", "24", "--resume"), env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
+    done = launch.run(_cli(out, "--episodes", str(EPISODES), "--resume"), env=ENV, cwd=ROOT, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert f"attempted {24 - kept}," in done.stdout  # nothing that was journaled is recorded again
+    assert f"attempted {EPISODES - kept}," in done.stdout  # nothing that was journaled is recorded again
     assert not journal_root(out).exists()
     _assert_same_dataset(out, reference)
 
@@ -88,20 +130,12 @@ def test_kill_9_while_a_data_file_is_open_then_resume_gives_the_uninterrupted_re
     """The first report: `kill -9` once LeRobot had written an episode index beside a data file it still had open
     (more than ten episodes in the session), then `--resume`, ended in pyarrow's 'Parquet magic bytes not found'."""
     out = tmp_path / "ds"
-    proc = subprocess.Popen(
-        _cli(out, "--episodes", "24", "--commit-interval", "600"),
-        env=ENV,
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
+    proc = Started(_cli(out, "--episodes", str(EPISODES), "--commit-interval", "600"), tmp_path)
     _wait_for_journal(out, 14, proc)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not out.exists() and list((tmp_path / "ds.session" / "meta" / "episodes").rglob("*.parquet"))
-    done = subprocess.run(
-        _cli(out, "--episodes", "24", "--resume"), env=ENV, cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
+    done = launch.run(_cli(out, "--episodes", str(EPISODES), "--resume"), env=ENV, cwd=ROOT, text=True, timeout=600)
     assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
     _assert_same_dataset(out, reference)
     assert not (tmp_path / "ds.session").exists() and not journal_root(out).exists()
@@ -110,14 +144,7 @@ def test_kill_9_while_a_data_file_is_open_then_resume_gives_the_uninterrupted_re
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
 def test_sigterm_and_sighup_commit_like_ctrl_c(tmp_path, signum):
     out = tmp_path / "ds"
-    proc = subprocess.Popen(
-        _cli(out, "--episodes", "200", "--workers", "2"),
-        env=ENV,
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = Started(_cli(out, "--episodes", "200", "--workers", "2"), tmp_path)
     journaled = _wait_for_journal(out, 3, proc)
     proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=120)
@@ -175,10 +202,10 @@ def test_recording_leaks_no_files_or_descriptors(tmp_path):
     def open_fds() -> int:
         return len(os.listdir("/proc/self/fd"))
 
-    record(RecordConfig.of(task=TASK, episodes=2, out=tmp_path / "warm", mcap=True), progress=False)
+    record(RecordConfig.of(task=TASK, episodes=1, out=tmp_path / "warm", mcap=True), progress=False)
     before = open_fds()
     for i in range(3):
-        record(RecordConfig.of(task=TASK, episodes=2, out=tmp_path / f"ds{i}", mcap=True), progress=False)
+        record(RecordConfig.of(task=TASK, episodes=1, out=tmp_path / f"ds{i}", mcap=True), progress=False)
     assert open_fds() <= before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds0", "ds1", "ds2", "warm"]
 
@@ -187,13 +214,7 @@ def test_a_journal_with_episodes_is_never_overwritten_by_accident(tmp_path):
     from kitbench.errors import KitbenchError
 
     out = tmp_path / "ds"
-    proc = subprocess.Popen(
-        _cli(out, "--episodes", "50", "--no-mcap"),
-        env=ENV,
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    proc = Started(_cli(out, "--episodes", "50", "--no-mcap"), tmp_path)
     _wait_for_journal(out, 2, proc)
     proc.send_signal(signal.SIGKILL)
     proc.wait()

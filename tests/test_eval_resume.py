@@ -23,11 +23,15 @@ from kitbench.evaluation.journal import EvalJournal
 from tests import launch
 from tests.conftest import VULKAN
 from tests.datasets_equal import no_leftovers, same_content
+from tests.test_durability import Started
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ROOT / "eval" / "suites" / "lift_peg_upright_short.toml"
 EPISODES = 6
 FILMED = ("--videos", "1") if VULKAN else ()  # filming needs a render device (seconds a video), the scores do not
+# saving a dataset (seconds an episode): three episodes show it resumed mid-suite and at each step of its commit
+SAVED_EPISODES = 3
+SAVE = ("--save-dataset", "ds", "--episodes", str(SAVED_EPISODES))  # the last --episodes counts
 
 
 def _env() -> dict[str, str]:
@@ -97,7 +101,7 @@ def twins(tmp_path_factory) -> dict[str, Path]:
     """Uninterrupted runs: unbatched, with a video where this machine can film, at batch size 4, and with
     --save-dataset."""
     base = tmp_path_factory.mktemp("twins")
-    flags = {"one": (), "filmed": FILMED, "batch": ("--batch-size", "4"), "save": ("--save-dataset", "ds")}
+    flags = {"one": (), "filmed": FILMED, "batch": ("--batch-size", "4"), "save": SAVE}
     for name, extra in flags.items():
         _ok(base / name, _eval_args(*extra))
     return {name: base / name for name in flags}
@@ -114,9 +118,9 @@ CASES = {
     "the report complete, the journal not yet deleted": ("filmed", FILMED, "eval.finishing", EPISODES),
     "batch size 4, after the first batch": ("batch", ("--batch-size", "4"), "eval.journaled:1", 4),
     "batch size 4, the report written": ("batch", ("--batch-size", "4"), "eval.reported", EPISODES),
-    "saving a dataset, mid-suite": ("save", ("--save-dataset", "ds"), "eval.journaled:3", 3),
-    "saving a dataset, its commit not in place": ("save", ("--save-dataset", "ds"), "commit.card:1", EPISODES),
-    "saving a dataset, its commit in place": ("save", ("--save-dataset", "ds"), "commit.swapped:1", EPISODES),
+    "saving a dataset, mid-suite": ("save", SAVE, "eval.journaled:2", 2),
+    "saving a dataset, its commit not in place": ("save", SAVE, "commit.card:1", SAVED_EPISODES),
+    "saving a dataset, its commit in place": ("save", SAVE, "commit.swapped:1", SAVED_EPISODES),
 }
 
 
@@ -161,11 +165,11 @@ def test_a_torn_journal_line_is_scored_again(tmp_path, twins):
 def test_sigterm_stops_in_one_line_and_the_run_resumes(tmp_path):
     """SIGTERM ends the run between two journaled episodes, saying how to continue; the resumed report equals
     an uninterrupted one (a policy that runs every episode to its time limit, so the run lasts long enough)."""
-    args = _eval_args("--policy", "zero", episodes=10)
+    args = _eval_args("--policy", "zero", episodes=6)
     _ok(tmp_path / "twin", args)
     folder = tmp_path / "stopped"
     folder.mkdir()
-    proc = subprocess.Popen(args, cwd=folder, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = Started(args, tmp_path, env=_env(), cwd=folder)  # a fork of the test's server, as `_run`'s are
     results = EvalJournal(folder / "report").results_path
     deadline = time.monotonic() + 300
     while proc.poll() is None and time.monotonic() < deadline:
@@ -179,7 +183,7 @@ def test_sigterm_stops_in_one_line_and_the_run_resumes(tmp_path):
     assert "--resume" in lines[-1] and "Traceback" not in stderr
     _ok(folder, [*args, "--resume"])
     same_report(tmp_path / "twin" / "report", folder / "report")
-    assert 2 <= _resumed(folder / "report") < 10
+    assert 2 <= _resumed(folder / "report") < 6
 
 
 # -- refusals ------------------------------------------------------------------------------------------

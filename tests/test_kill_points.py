@@ -30,35 +30,36 @@ TASK = "LiftPegUpright-v1"
 # LeRobot buffers episode metadata ten episodes at a time: past ten, a session has an episode index on disk whose
 # data file has no footer yet, the state the first report of a failing resume was in.
 EPISODES = 12
-# With a commit after every episode, every point below is passed within the first five commits: six episodes do.
+# Every other point is passed within the first six episodes (with a commit after every episode, within the first
+# five commits): six episodes do.
 EACH_EPISODES = 6
 OPEN = 30.0  # commit interval that keeps one session open for the whole recording
 EACH = 0.0  # a commit after every episode
 
-# case -> the commit interval, and the fault point each killed run stops at (a second one: killed again while
-# resuming); the passes counted are the run's own.
-CASES: dict[str, tuple[float, list[str]]] = {
-    "before the first episode": (OPEN, ["record.started"]),
-    "the journal's settings half written": (OPEN, ["journal.write:1"]),
-    "an MCAP log half written to the journal": (OPEN, ["journal.write:4"]),
-    "an episode half written to the journal": (OPEN, ["journal.write:5"]),
-    "journaled, not yet in the session": (OPEN, ["journal.added:3"]),
-    "half an episode in LeRobot's buffer": (OPEN, ["writer.frames:2"]),
-    "the first data file open": (OPEN, ["writer.saved:1"]),
-    "a data file open beside an episode index": (OPEN, ["writer.saved:11"]),
-    "an MCAP log linked into the session": (OPEN, ["session.published:6"]),
-    "a session finalized": (EACH, ["commit.finalized:3"]),
-    "kitbench's metadata written": (EACH, ["commit.metadata:2"]),
-    "the first commit complete, not in place": (EACH, ["commit.card:1"]),
-    "a commit complete, not in place": (EACH, ["commit.card:4"]),
-    "the dataset set aside": (EACH, ["commit.retired:2"]),
-    "the first commit in place": (EACH, ["commit.swapped:1"]),
-    "a commit in place, the old dataset not deleted": (EACH, ["commit.swapped:3"]),
-    "committed, its episodes still journaled": (EACH, ["commit.done:5"]),
-    "the journal half trimmed": (EACH, ["journal.discard:3"]),
-    "the last commit made, the journal being deleted": (OPEN, ["record.finishing"]),
-    "killed again while republishing": (OPEN, ["writer.saved:8", "resume.republish:3"]),
-    "killed at a commit, then inside the next": (EACH, ["commit.retired:2", "commit.finalized:2"]),
+# case -> the commit interval, the episodes recorded, and the fault point each killed run stops at (a second one:
+# killed again while resuming); the passes counted are the run's own.
+CASES: dict[str, tuple[float, int, list[str]]] = {
+    "before the first episode": (OPEN, EACH_EPISODES, ["record.started"]),
+    "the journal's settings half written": (OPEN, EACH_EPISODES, ["journal.write:1"]),
+    "an MCAP log half written to the journal": (OPEN, EACH_EPISODES, ["journal.write:4"]),
+    "an episode half written to the journal": (OPEN, EACH_EPISODES, ["journal.write:5"]),
+    "journaled, not yet in the session": (OPEN, EACH_EPISODES, ["journal.added:3"]),
+    "half an episode in LeRobot's buffer": (OPEN, EACH_EPISODES, ["writer.frames:2"]),
+    "the first data file open": (OPEN, EACH_EPISODES, ["writer.saved:1"]),
+    "a data file open beside an episode index": (OPEN, EPISODES, ["writer.saved:11"]),
+    "an MCAP log linked into the session": (OPEN, EACH_EPISODES, ["session.published:6"]),
+    "a session finalized": (EACH, EACH_EPISODES, ["commit.finalized:3"]),
+    "kitbench's metadata written": (EACH, EACH_EPISODES, ["commit.metadata:2"]),
+    "the first commit complete, not in place": (EACH, EACH_EPISODES, ["commit.card:1"]),
+    "a commit complete, not in place": (EACH, EACH_EPISODES, ["commit.card:4"]),
+    "the dataset set aside": (EACH, EACH_EPISODES, ["commit.retired:2"]),
+    "the first commit in place": (EACH, EACH_EPISODES, ["commit.swapped:1"]),
+    "a commit in place, the old dataset not deleted": (EACH, EACH_EPISODES, ["commit.swapped:3"]),
+    "committed, its episodes still journaled": (EACH, EACH_EPISODES, ["commit.done:5"]),
+    "the journal half trimmed": (EACH, EACH_EPISODES, ["journal.discard:3"]),
+    "the last commit made, the journal being deleted": (OPEN, EACH_EPISODES, ["record.finishing"]),
+    "killed again while republishing": (OPEN, EPISODES, ["writer.saved:8", "resume.republish:3"]),
+    "killed at a commit, then inside the next": (EACH, EACH_EPISODES, ["commit.retired:2", "commit.finalized:2"]),
 }
 
 
@@ -79,14 +80,10 @@ def short_reference(tmp_path_factory) -> Path:
     return record_reference(tmp_path_factory, EACH_EPISODES)
 
 
-def _episodes(interval: float) -> int:
-    return EPISODES if interval == OPEN else EACH_EPISODES
-
-
-def _command(out: Path, interval: float, resume: bool) -> list[str]:
+def _command(out: Path, interval: float, resume: bool, episodes: int = EPISODES) -> list[str]:
     flags = [
         "--episodes",
-        str(_episodes(interval)),
+        str(episodes),
         "--commit-interval",
         str(interval),
         *(["--resume"] if resume else []),
@@ -102,14 +99,15 @@ def killed_at(cmd: list[str], fault: str) -> None:
     assert run.returncode == -signal.SIGKILL, f"{fault} was not reached (exit {run.returncode}): {run.stderr[-2000:]}"
 
 
-@pytest.mark.parametrize(("interval", "kills"), CASES.values(), ids=CASES.keys())
-def test_a_recording_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(tmp_path, request, interval, kills):
-    reference = request.getfixturevalue("reference" if interval == OPEN else "short_reference")
+@pytest.mark.parametrize(("interval", "episodes", "kills"), CASES.values(), ids=CASES.keys())
+def test_a_recording_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(
+    tmp_path, request, interval, episodes, kills
+):
+    reference = request.getfixturevalue("reference" if episodes == EPISODES else "short_reference")
     out = tmp_path / "ds"
     for i, fault in enumerate(kills):
-        killed_at(_command(out, interval, resume=i > 0), fault)
+        killed_at(_command(out, interval, i > 0, episodes), fault)
     assert out.exists() or journal_root(out).exists()  # something to resume
-    episodes = _episodes(interval)
     summary = record(
         RecordConfig.of(task=TASK, episodes=episodes, out=out, commit_interval=interval, resume=True), progress=False
     )

@@ -17,12 +17,15 @@ from kitbench.recording.dataset import recover
 from kitbench.recording.recorder import RecordConfig, record
 from tests import launch
 from tests.datasets_equal import no_leftovers, same_content
-from tests.test_kill_points import EACH, EPISODES, OPEN, ROOT, TASK, _command, killed_at, record_reference
+from tests.test_kill_points import EACH, OPEN, ROOT, TASK, _command, killed_at, record_reference
+
+# six episodes: two shards of three, a conversion's data file open at its fourth, two halves of three to merge
+EPISODES = 6
 
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> Path:
-    return record_reference(tmp_path_factory)
+    return record_reference(tmp_path_factory, EPISODES)
 
 
 def _cli(*args: str) -> list[str]:
@@ -46,9 +49,9 @@ SHARDED = {
 @pytest.mark.parametrize("fault", SHARDED.values(), ids=SHARDED.keys())
 def test_a_sharded_recording_killed_at_a_fault_point_resumes_into_one_writers_recording(tmp_path, reference, fault):
     out = tmp_path / "ds"
-    sharded = ["--shard-episodes", "4", "--workers", "2"]
-    killed_at([*_command(out, OPEN, resume=False), *sharded], fault)
-    _ok([*_command(out, OPEN, resume=True), *sharded])
+    sharded = ["--shard-episodes", "3", "--workers", "2"]
+    killed_at([*_command(out, OPEN, False, EPISODES), *sharded], fault)
+    _ok([*_command(out, OPEN, True, EPISODES), *sharded])
     same_content(reference, out)
     no_leftovers(out)
 
@@ -62,7 +65,7 @@ def converted(tmp_path_factory, reference) -> Path:
 
 @pytest.mark.parametrize(
     ("interval", "fault"),
-    [(OPEN, "writer.saved:7"), (EACH, "commit.retired:3")],
+    [(OPEN, "writer.saved:4"), (EACH, "commit.retired:3")],
     ids=["a data file open", "the dataset set aside"],
 )
 def test_a_conversion_killed_at_a_fault_point_resumes_into_the_uninterrupted_one(

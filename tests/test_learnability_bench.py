@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -75,14 +76,49 @@ def _tiny_config(where: Path) -> Path:
     return path
 
 
-def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_path, needs_vulkan):
+def _forked(command: list[str], log: Path, env: dict[str, str] | None = None, follow=None) -> float:
+    """`run.run_logged` with the command a fork of the test's server (`tests.launch`) instead of a fresh
+    interpreter: its output in `log` after the `$ command` line, handed to `follow`, its seconds or CommandFailed.
+    (`kitbench reproduce`'s test runs its commands through `run_logged` itself.)"""
+    from kitbench.training import run
+
+    log.parent.mkdir(parents=True, exist_ok=True)
+    start = time.monotonic()
+    done = launch.run(command, env={**run.ENV, **(env or {})}, timeout=1500)
+    output = done.stdout + done.stderr
+    log.write_bytes(f"$ {run.shell_line(command, env)}\n".encode() + output)
+    if follow is not None:
+        follow(output)
+    if done.returncode != 0:
+        raise run.CommandFailed(command, log, done.returncode)
+    return time.monotonic() - start
+
+
+def _bench_here(monkeypatch, capsys, *args: str) -> tuple[int, str]:
+    """`bench/learnability.py` run in this process, its recording, trainings and evaluations each a process of its
+    own (`_forked`), its reference workload cut to a few updates: what it times is not the point here. Its exit
+    status and what it printed."""
+    import bench.learnability as learnability
+    from kitbench.training import reference, run
+
+    monkeypatch.setattr(run, "run_logged", _forked)
+    monkeypatch.setattr(reference, "WARMUP", 1)
+    monkeypatch.setattr(reference, "STEPS", 2)
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setattr(sys, "argv", ["learnability.py", "--task", TASK, "--demos", "2", *args])
+    code = learnability.main()
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err
+
+
+def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_path, needs_vulkan, monkeypatch, capsys):
     config = _tiny_config(tmp_path)
     args = ["--config", str(config), "--steps", "2", "--train-seeds", "1,2", "--suites", "standard,heldout"]
-    args += ["--suite-episodes", "2", "--out", str(tmp_path / "out")]
-    run = _bench(*args, cwd=ROOT)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    args += ["--suite-episodes", "1", "--out", str(tmp_path / "out")]
+    code, printed = _bench_here(monkeypatch, capsys, *args)
+    assert code == 0, printed[-6000:]
     assert "plan: 1 recording(s) (2 demos), 2 training(s) (seeds 1, 2), 4 evaluation(s) on standard, heldout" in (
-        run.stdout
+        printed
     )
     rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
     assert sorted((r["train_seed"], r["suite_name"]) for r in rows) == [
@@ -91,21 +127,21 @@ def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_p
         (2, "heldout"),
         (2, "standard"),
     ]
-    assert all(r["reference_seconds"] > 0 and r["success"]["episodes"] == 2 for r in rows)
+    assert all(r["reference_seconds"] > 0 and r["success"]["episodes"] == 1 for r in rows)
     assert all(r["reference_seconds_after_training"] > 0 for r in rows)  # timed again as each training ended
-    assert run.stdout.count("s at this run's start)") == 2  # one line per training
+    assert printed.count("s at this run's start)") == 2  # one line per training
     heldout = [r for r in rows if r["suite_name"] == "heldout"]
     assert all("lift_peg_upright_heldout.toml" in r["commands"]["eval"] for r in heldout)
-    pooled = run.stdout[run.stdout.index("act, 2 demos, training seeds 1, 2, suites standard, heldout:") :]
+    pooled = printed[printed.index("act, 2 demos, training seeds 1, 2, suites standard, heldout:") :]
     k = sum(r["success"]["count"] for r in rows)
-    assert f"  pooled: {k}/8 " in pooled and "  standard: " in pooled and "  heldout: " in pooled
+    assert f"  pooled: {k}/4 " in pooled and "  standard: " in pooled and "  heldout: " in pooled
     assert "gap standard − heldout: " in pooled and "per training seed: 1: " in pooled
 
     # run again: every checkpoint and report is reused, nothing is trained or scored twice
-    again = _bench(*args, cwd=ROOT)
-    assert again.returncode == 0, again.stderr[-3000:]
-    assert again.stdout.count("reused the checkpoint trained by the same command") == 2
-    assert again.stdout.count("s as it ended") == 2  # the stamp keeps what the training's end measured
+    code, printed = _bench_here(monkeypatch, capsys, *args)
+    assert code == 0, printed[-6000:]
+    assert printed.count("reused the checkpoint trained by the same command") == 2
+    assert printed.count("s as it ended") == 2  # the stamp keeps what the training's end measured
     rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
     assert len(rows) == 8 and all(r["train_reused"] for r in rows[4:])
 

@@ -5,9 +5,10 @@ recording accepts the result, and a converted or replayed episode keeps its sour
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
-import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,16 +20,19 @@ from kitbench.metadata import CARRIER, RECORDING_FILE, RecordingInfo, read_episo
 from kitbench.recording.merge import merge
 from kitbench.recording.recorder import RecordConfig, record
 from kitbench.recording.source import SourceRecording
-from tests.lerobot_cli import BIN, OFFLINE
+from tests import launch
+from tests.lerobot_cli import OFFLINE
 
 LPU, AK = "LiftPegUpright-v1", "AssemblingKits-v1"
 
 
 def _edit(repo: str, root: Path, *operation: str, new_root: Path | None = None) -> None:
-    cmd = [str(BIN / "lerobot-edit-dataset"), "--repo_id", repo, "--root", str(root), *operation]
+    """`lerobot-edit-dataset` (its script as `python FILE` runs it), a fork of the test's server (`tests.launch`)."""
+    script = importlib.util.find_spec("lerobot.scripts.lerobot_edit_dataset").origin
+    cmd = [sys.executable, str(script), "--repo_id", repo, "--root", str(root), *operation]
     if new_root is not None:
         cmd += ["--new_repo_id", f"{repo}_edited", "--new_root", str(new_root)]
-    run = subprocess.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=600)
+    run = launch.run(cmd, text=True, env=OFFLINE, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
 
 
@@ -58,15 +62,33 @@ def recordings(tmp_path_factory):
         ("ak_cam", AK, 0, 3, "rgb+depth"),
     ):
         out = base / name
-        record(RecordConfig.of(task=task, episodes=episodes, out=out, seed=seed, obs_mode=obs_mode), progress=False)
+        # the cameras' pixels are not the point: small images (their shapes and the kits are)
+        size = {"camera_size": "32x32"} if obs_mode != "state" else {}
+        config = RecordConfig.of(task=task, episodes=episodes, out=out, seed=seed, obs_mode=obs_mode, **size)
+        record(config, progress=False)
         made[name] = out
     return made
 
 
-def _edited(recordings, tmp_path, tool: str, name: str = "lpu") -> Path:
-    """The recording `name` after LeRobot's `tool`, in a new folder under `tmp_path`."""
+@pytest.fixture(scope="module")
+def edited(recordings, tmp_path_factory):
+    """`edited(tool, name="lpu")`: the recording `name` after LeRobot's `tool`, made once for the module (the tests
+    read the result, never change it)."""
+    base = tmp_path_factory.mktemp("edited")
+    made: dict[tuple[str, str], Path] = {}
+
+    def get(tool: str, name: str = "lpu") -> Path:
+        if (tool, name) not in made:
+            made[tool, name] = _edited(recordings, base / name, tool, name)
+        return made[tool, name]
+
+    return get
+
+
+def _edited(recordings, where: Path, tool: str, name: str = "lpu") -> Path:
+    """The recording `name` after LeRobot's `tool`, in a new folder under `where`."""
     src = recordings[name]
-    out = tmp_path / tool
+    out = where / tool
     if tool == "delete_episodes":
         _edit(f"kb/{name}", src, "--operation.type", tool, "--operation.episode_indices", "[1]", new_root=out)
     elif tool == "split":
@@ -106,8 +128,8 @@ TOOLS = ("delete_episodes", "split", "merge", "remove_feature", "modify_tasks", 
 
 
 @pytest.mark.parametrize("tool", TOOLS)
-def test_after_each_lerobot_tool_the_recording_reads_with_its_settings_and_episode_facts(recordings, tmp_path, tool):
-    out = _edited(recordings, tmp_path, tool)
+def test_after_each_lerobot_tool_the_recording_reads_with_its_settings_and_episode_facts(recordings, edited, tool):
+    out = edited(tool)
     source = RecordingInfo.read(recordings["lpu"])
     info = RecordingInfo.read(out)
     assert info is not None and not info.differences(source, ignore=("seed",)), info
@@ -126,8 +148,8 @@ def test_after_each_lerobot_tool_the_recording_reads_with_its_settings_and_episo
 
 
 @pytest.mark.parametrize("tool", ("delete_episodes", "split", "aggregate", "remove_feature"))
-def test_convert_and_replay_read_an_edited_recording_and_keep_each_episode_seed(recordings, tmp_path, tool):
-    out = _edited(recordings, tmp_path, tool)
+def test_convert_and_replay_read_an_edited_recording_and_keep_each_episode_seed(edited, tmp_path, tool):
+    out = edited(tool)
     converted = tmp_path / "converted"
     assert main(["convert", str(out), "--out", str(converted), "--control-mode", "pd_ee_pose"]) == 0
     assert [e.seed for e in read_episodes(converted)] == [e.seed for e in read_episodes(out)]
@@ -144,9 +166,9 @@ def test_convert_and_replay_read_an_edited_recording_and_keep_each_episode_seed(
 
 
 def test_a_camera_recording_of_assembling_kits_keeps_its_kits_and_shapes_through_delete_and_converts(
-    recordings, tmp_path
+    recordings, edited, tmp_path
 ):
-    out = _edited(recordings, tmp_path, "delete_episodes", "ak_cam")
+    out = edited("delete_episodes", "ak_cam")
     assert not (out / RECORDING_FILE).exists()  # LeRobot's tool dropped kitbench's files
     facts, source = _facts(out), _facts(recordings["ak_cam"])
     assert facts == {s: source[s] for s in facts} and len(facts) == 2
@@ -157,17 +179,17 @@ def test_a_camera_recording_of_assembling_kits_keeps_its_kits_and_shapes_through
     assert {s: f[4]["shape"] for s, f in _facts(converted).items()} == {s: f[4]["shape"] for s, f in facts.items()}
 
 
-def test_kitbench_merge_and_lerobots_merge_give_equivalent_recordings(recordings, tmp_path, capsys):
+def test_kitbench_merge_and_lerobots_merge_give_equivalent_recordings(recordings, edited, tmp_path, capsys):
     ours = tmp_path / "ours"
     merge([recordings["lpu_later"], recordings["lpu"]], ours)
-    theirs = _edited(recordings, tmp_path, "merge")
+    theirs = edited("merge")
     assert not RecordingInfo.read(ours).differences(RecordingInfo.read(theirs))
     assert _facts(ours) == _facts(theirs)
     a, b = _actions(ours), _actions(theirs)
     assert a.keys() == b.keys() and all(np.array_equal(a[s], b[s]) for s in a)
     # and kitbench merges what LeRobot's tools made, saying in one line what they could not carry
     again = tmp_path / "again"
-    assert main(["merge", str(_edited(recordings, tmp_path, "delete_episodes")), str(recordings["lpu_later"]),
+    assert main(["merge", str(edited("delete_episodes")), str(recordings["lpu_later"]),
                  "--out", str(again)]) == 0  # fmt: skip
     lost = [line for line in capsys.readouterr().out.splitlines() if "no MCAP log" in line]
     assert len(lost) == 1 and "3 episode(s)" in lost[0] and "do not copy mcap/" in lost[0]
