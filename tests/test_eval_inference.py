@@ -95,7 +95,19 @@ def test_batches_of_policies_that_act_alone_score_exactly_as_unbatched(tmp_path)
     assert one["success"]["rate"] == 1.0 and len({e["length"] for e in one["per_episode"]}) > 1
 
 
-@pytest.mark.parametrize(("task", "obs_mode", "policy"), CASES, ids=["-".join(c) for c in CASES])
+# AssemblingKits on state repeats the code paths of two cases make test runs: the batched state ACT of
+# LiftPegUpright-v1-state-act and the AssemblingKits episodes of AssemblingKits-v1-rgb-act (make test-all and CI
+# run it too).
+SLOW_CASES = {("AssemblingKits-v1", "state", "act")}
+# One denoising step a prediction: the Diffusion re-plans every step as before, at a third of the U-Net's runs (the
+# batching, not the policy, is tested).
+CHEAP_DIFFUSION = (("num_inference_steps", 1),)
+
+
+@pytest.mark.parametrize(
+    ("task", "obs_mode", "policy"),
+    [pytest.param(*c, id="-".join(c), marks=[pytest.mark.slow] if c in SLOW_CASES else []) for c in CASES],
+)
 def test_a_batched_network_scores_each_episode_as_unbatched(
     checkpoints, needs_vulkan, task, obs_mode, policy, tmp_path
 ):
@@ -103,15 +115,16 @@ def test_a_batched_network_scores_each_episode_as_unbatched(
 
     checkpoint = checkpoints[task, obs_mode, policy]
     spec = f"lerobot:{checkpoint}"
-    one = _eval(task, obs_mode, spec, tmp_path / "b1", 1)
-    three = _eval(task, obs_mode, spec, tmp_path / "b3", 3)
+    cheap = {"policy_options": CHEAP_DIFFUSION} if policy == "diffusion" else {}
+    one = _eval(task, obs_mode, spec, tmp_path / "b1", 1, **cheap)
+    three = _eval(task, obs_mode, spec, tmp_path / "b3", 3, **cheap)
     assert [e["seed"] for e in three["per_episode"]] == [e["seed"] for e in one["per_episode"]]
     for a, b in zip(three["per_episode"], one["per_episode"], strict=True):
         assert (a["success"], a["failure"], a["length"]) == (b["success"], b["failure"], b["length"]), a["seed"]
     # Returns are not compared: float32 rounding in the batched kernels (below 1e-6 of an action) grows through
     # contacts into the return's later digits (2.6% on one AssemblingKits seed over 200 steps, outcome unchanged).
     if policy == "diffusion":  # seeded by its batch's first seed: the same command, the same report
-        again = _eval(task, obs_mode, spec, tmp_path / "b3again", 3)
+        again = _eval(task, obs_mode, spec, tmp_path / "b3again", 3, **cheap)
         assert without_timing(again) == without_timing(three)
 
     # each row of a batched call is that episode's own action: rows are not mixed up, whatever the batch
@@ -257,7 +270,7 @@ def test_a_diffusion_checkpoint_re_plans_every_step_and_averages_with_temporal_e
     env.close()
 
     suite = adhoc_suite("LiftPegUpright-v1", 3, 0, control_mode="pd_ee_delta_pose")
-    options = (("temporal_ensemble_coeff", 0.01),)
+    options = (("temporal_ensemble_coeff", 0.01), *CHEAP_DIFFUSION)
     spec = f"lerobot:{checkpoint}"
     runs = [
         run_eval(
@@ -266,7 +279,7 @@ def test_a_diffusion_checkpoint_re_plans_every_step_and_averages_with_temporal_e
         )
         for n in (1, 3)
     ]
-    assert runs[0]["policy_options"] == {"temporal_ensemble_coeff": 0.01}
+    assert runs[0]["policy_options"] == {"temporal_ensemble_coeff": 0.01, "num_inference_steps": 1}
     outcomes = [[(e["seed"], e["success"], e["failure"], e["length"]) for e in r["per_episode"]] for r in runs]
     assert outcomes[0] == outcomes[1] and len(outcomes[0]) == 3
 
