@@ -4,6 +4,7 @@ with SIGKILL mid-run costs nothing, and bad settings are refused before anything
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import signal
@@ -125,16 +126,34 @@ def test_sharded_recording_on_ray_writes_the_same_dataset_as_one_local_writer(cl
     same_content(local_dataset, out)
 
 
+# Camera episodes at 64 pixels: the frames' way from the actor to the dataset is tested, not the pixels.
+CAMERA = {"task": "LiftPegUpright-v1", "episodes": 2, "obs_mode": "rgb", "camera_size": "64", "mcap": False}
+
+
+@pytest.fixture(scope="module")
+def local_camera(tmp_path_factory):
+    """The local one-worker camera recording both cases compare with, recorded once when first asked for (after
+    `needs_vulkan`)."""
+
+    @functools.cache
+    def recorded() -> Path:
+        out = tmp_path_factory.mktemp("camera") / "local"
+        record(RecordConfig.of(**CAMERA, out=out), progress=False)
+        return out
+
+    return recorded
+
+
 @pytest.mark.parametrize("shard_episodes", [0, 1])
-def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(needs_vulkan, cluster, tmp_path, shard_episodes):
+def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(
+    needs_vulkan, cluster, local_camera, tmp_path, shard_episodes
+):
     """Camera episodes rendered in Ray actors (sent to the writer, or written into shards there) decode to the
     frames a local one-worker recording stores."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    settings = {"task": "LiftPegUpright-v1", "episodes": 2, "obs_mode": "rgb", "mcap": False}
-    record(RecordConfig.of(**settings, out=tmp_path / "local"), progress=False)
     on_ray = RecordConfig.of(
-        **settings,
+        **CAMERA,
         out=tmp_path / "ray",
         executor="ray",
         workers=2,
@@ -142,7 +161,7 @@ def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(needs_vulka
         shard_episodes=shard_episodes,
     )
     record(on_ray, progress=False)
-    local, ray_ds = LeRobotDataset("kitbench/a", root=tmp_path / "local"), LeRobotDataset("kitbench/b", root=on_ray.out)
+    local, ray_ds = LeRobotDataset("kitbench/a", root=local_camera()), LeRobotDataset("kitbench/b", root=on_ray.out)
     assert len(local) == len(ray_ds) and local.meta.video_keys == ray_ds.meta.video_keys
     for i in range(len(local)):
         a, b = local[i], ray_ds[i]
@@ -186,8 +205,15 @@ def _record_command(out: Path, address: str, *extra: str, episodes: int = EPISOD
 
 
 def _start(command: list[str]) -> subprocess.Popen:
+    """A run to watch and kill while it runs: a process of its own."""
     env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1"}
     return subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _run(command: list[str]) -> subprocess.CompletedProcess:
+    """A run waited for (a resume): a fork of the command server (`tests.launch`), spared the interpreter's start."""
+    env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1"}
+    return launch.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
 
 
 def _seeds(out: Path) -> list[int]:
@@ -233,9 +259,8 @@ def test_resume_after_the_driver_is_killed_continues_from_the_last_committed_epi
         proc.communicate()
     committed = _seeds(out)
     assert 2 <= len(committed) < EPISODES and committed == list(range(len(committed)))
-    resumed = _start(_record_command(out, cluster.address, "--resume"))
-    _, stderr = resumed.communicate(timeout=300)
-    assert resumed.returncode == 0, stderr[-3000:]
+    resumed = _run(_record_command(out, cluster.address, "--resume"))
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert _seeds(out) == list(range(EPISODES))
     same_content(local_dataset, out)
 
@@ -255,9 +280,8 @@ def test_a_ray_recording_whose_driver_is_killed_at_a_fault_point_resumes_into_th
         _record_command(out, cluster.address, *extra), cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
     )
     assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
-    resumed = _start(_record_command(out, cluster.address, "--resume", *extra))
-    _, stderr = resumed.communicate(timeout=300)
-    assert resumed.returncode == 0 and "Traceback" not in stderr, stderr[-3000:]
+    resumed = _run(_record_command(out, cluster.address, "--resume", *extra))
+    assert resumed.returncode == 0 and "Traceback" not in resumed.stderr, resumed.stderr[-3000:]
     same_content(local_dataset, out)
     no_leftovers(out)
 

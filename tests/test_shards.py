@@ -79,8 +79,9 @@ def test_sigterm_stops_a_sharded_pool_recording_promptly_and_resume_finishes(tmp
     import time
 
     out = tmp_path / "lpu"
-    command = [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--episodes", "12", "--out", str(out)]
-    command += ["--workers", "2", "--shard-episodes", "3", "--no-mcap"]
+    # three shards on two workers: the third is under way when the first is stored
+    command = [sys.executable, "-m", "kitbench.cli", "record", "--task", TASK, "--episodes", "6", "--out", str(out)]
+    command += ["--workers", "2", "--shard-episodes", "2", "--no-mcap"]
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     shards = journal_root(out) / "shards"
     deadline = time.monotonic() + 240
@@ -93,7 +94,7 @@ def test_sigterm_stops_a_sharded_pool_recording_promptly_and_resume_finishes(tmp
     assert "continue with --resume" in stdout and list(shards.glob("shard-*"))
     launch.run([*command, "--resume"], check=True, capture_output=True, timeout=300)
     seeds = [json.loads(line)["seed"] for line in (out / "meta/kitbench_episodes.jsonl").read_text().splitlines()]
-    assert seeds == list(range(12))
+    assert seeds == list(range(6))
 
 
 class _EndsEarly:
