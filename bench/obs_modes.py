@@ -37,9 +37,9 @@ from throughput import names
 
 import kitbench
 from kitbench.doctor import check_vulkan
+from kitbench.env_settings import OBS_MODES as RECORDABLE  # what a recording stores
 from kitbench.envs.modes import OBS_MODES
 from kitbench.errors import one_line
-from kitbench.recording.config import OBS_MODES_RECORDABLE
 from kitbench.recording.recorder import MCAP_DIR, RecordConfig, record
 from kitbench.recording.summary import folder_size
 
@@ -204,7 +204,7 @@ def main() -> None:
         print_rates(task, step_rates(task, args.modes, args.seconds, args.rounds), args.seconds, args.rounds)
     if args.no_sizes:
         return
-    recordable = [m for m in args.modes if m in OBS_MODES_RECORDABLE]
+    recordable = [m for m in args.modes if m in RECORDABLE]
     with tempfile.TemporaryDirectory(prefix="kitbench-bench-") as tmp:
         for task in args.task:
             print_sizes(task, recordable, args.episodes, Path(tmp))
