@@ -39,11 +39,11 @@ def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeyp
     """The record -> train -> score commands the demo ends with, run as printed from a project folder (its recipes,
     configs and suites) on the CPU, with only a tiny size added to each."""
     import os
-    import subprocess
     import sys
     from pathlib import Path
 
     from kitbench.demo import learning_loop
+    from tests import launch
 
     root = Path(__file__).resolve().parents[1]
     for folder in ("datasets", "policies", "eval"):
@@ -63,7 +63,8 @@ def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeyp
         (loop.train, ["--steps=2", "--save_freq=2"]),
         (loop.score, ["--episodes", "2"]),
     ):
-        run = subprocess.run([*command, *tiny], capture_output=True, text=True, env=env, timeout=900, check=False)
+        # each a process of its own, forked from a server that imported kitbench and lerobot once (tests/launch.py)
+        run = launch.run([*command, *tiny], text=True, env=env, timeout=900)
         assert run.returncode == 0, f"{command}: {run.stdout[-2000:]}{run.stderr[-2000:]}"
     report = json.loads((tmp_path / "outputs/eval/LiftPegUpright-v1").glob("*/report.json").__next__().read_text())
     assert report["episodes"] == 2 and report["policy"].startswith("lerobot:")
