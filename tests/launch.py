@@ -82,10 +82,58 @@ def _call(script: str, args: list[str]) -> int:
     return code if isinstance(code, int) else 0
 
 
-def _capture_file(suffix: str) -> str:
-    fd, path = tempfile.mkstemp(prefix="kitbench-launch-", suffix=suffix)
-    os.close(fd)
-    return path
+class Started:
+    """A command started as a fork of the server, not waited for; what tests use of subprocess.Popen: poll,
+    send_signal, wait, communicate (its output as text) and returncode (-N for a run killed by signal N)."""
+
+    def __init__(self, script: str, args: list[str], env: dict[str, str], cwd: Path | str, logs: Path | str | None):
+        """`script` with `args` in `cwd` with `env`, its output in two files in `logs` (default: the temporary
+        folder; `communicate` deletes them)."""
+        self._files: list[Path] = []
+        for suffix in (".out", ".err"):
+            fd, path = tempfile.mkstemp(prefix="kitbench-launch-", suffix=suffix, dir=logs)
+            os.close(fd)
+            self._files.append(Path(path))
+        files = [str(f) for f in self._files]
+        self._process = _server().Process(target=_main, args=(script, list(args), env, str(cwd), *files))
+        self._process.start()
+        self.args = [script, *args]
+
+    @property
+    def returncode(self) -> int | None:
+        return self._process.exitcode
+
+    def poll(self) -> int | None:
+        return self._process.exitcode
+
+    def send_signal(self, signum: int) -> None:
+        os.kill(self._process.pid, signum)
+
+    def wait(self, timeout: float | None = None) -> int | None:
+        self._process.join(timeout)
+        return self._process.exitcode
+
+    def communicate(self, timeout: float | None = None) -> tuple[str, str]:
+        """Its output once it ends; past `timeout` it is killed and TimeoutExpired raised."""
+        self._process.join(timeout)
+        if self._process.exitcode is None:
+            self._process.kill()
+            self._process.join()
+            raise subprocess.TimeoutExpired(self.args, timeout or 0)
+        try:
+            return self._files[0].read_text(), self._files[1].read_text()
+        finally:
+            for path in self._files:
+                path.unlink(missing_ok=True)
+
+
+def start(command: list, *, env=None, cwd=None, logs: Path | str | None = None) -> Started:
+    """A kitbench command (as `script_args` knows it) started as a fork and not waited for, as subprocess.Popen
+    starts one; its output in files in `logs`."""
+    known = script_args(command)
+    if known is None:
+        raise ValueError(f"not a command the server runs: {command}")
+    return Started(known[0], known[1], dict(env or os.environ), Path(cwd or os.getcwd()), logs)
 
 
 def run_cli(
@@ -99,22 +147,12 @@ def run_cli(
     """`script` (a console script of `SCRIPTS`; `kitbench`: `python -m kitbench.cli`) with `args` in `cwd` with
     `env` (default: this process's), its output captured: the subprocess.run(..., capture_output=True, text=True)
     of it, with -N the exit status of a run killed by signal N."""
-    folder = Path(cwd or os.getcwd())
-    out, err = (_capture_file(suffix) for suffix in (".out", ".err"))
-    process = _server().Process(target=_main, args=(script, list(args), dict(env or os.environ), str(folder), out, err))
-    process.start()
-    process.join(timeout)
-    if process.is_alive():
-        process.kill()
-        process.join()
-        raise subprocess.TimeoutExpired([script, *args], timeout)
+    started = Started(script, args, dict(env or os.environ), Path(cwd or os.getcwd()), None)
     try:
-        return subprocess.CompletedProcess(
-            [script, *args], process.exitcode, Path(out).read_text(), Path(err).read_text()
-        )
-    finally:
-        Path(out).unlink(missing_ok=True)
-        Path(err).unlink(missing_ok=True)
+        out, err = started.communicate(timeout)
+    except subprocess.TimeoutExpired:
+        raise subprocess.TimeoutExpired([script, *args], timeout) from None
+    return subprocess.CompletedProcess([script, *args], started.returncode, out, err)
 
 
 def script_args(command: list) -> tuple[str, list[str]] | None:

@@ -8,7 +8,6 @@ import os
 import random
 import signal
 import subprocess
-import tempfile
 import time
 from pathlib import Path
 
@@ -32,47 +31,6 @@ EPISODES = 24
 
 def _cli(out: Path, *args: str) -> list[str]:
     return record_command(out, TASK, *args)
-
-
-class Started:
-    """A kitbench command started, not waited for, as a fork of the test's server (`tests.launch`: a process of its
-    own, killed alone by a signal, without a fresh interpreter's seconds of imports); what the tests use of
-    subprocess.Popen: poll, send_signal, wait, communicate (its output as text) and returncode."""
-
-    def __init__(self, cmd: list[str], logs: Path, env: dict[str, str] = ENV, cwd: Path = ROOT):
-        """`cmd` started in `cwd` with `env`, its output in two files in `logs`."""
-        script, args = launch.script_args(cmd) or (None, [])
-        assert script is not None, cmd
-        self._files = []
-        for suffix in (".out", ".err"):
-            fd, path = tempfile.mkstemp(prefix="started-", suffix=suffix, dir=logs)
-            os.close(fd)
-            self._files.append(Path(path))
-        files = [str(f) for f in self._files]
-        self._process = launch._server().Process(target=launch._main, args=(script, args, env, str(cwd), *files))
-        self._process.start()
-
-    @property
-    def returncode(self) -> int | None:
-        return self._process.exitcode
-
-    def poll(self) -> int | None:
-        return self._process.exitcode
-
-    def send_signal(self, signum: int) -> None:
-        os.kill(self._process.pid, signum)
-
-    def wait(self, timeout: float | None = None) -> int | None:
-        self._process.join(timeout)
-        return self._process.exitcode
-
-    def communicate(self, timeout: float | None = None) -> tuple[str, str]:
-        self._process.join(timeout)
-        if self._process.exitcode is None:
-            self._process.kill()
-            self._process.join()
-            raise subprocess.TimeoutExpired(self._process.name, timeout or 0)
-        return self._files[0].read_text(), self._files[1].read_text()
 
 
 def _wait_for_journal(out: Path, count: int, proc: subprocess.Popen, timeout: float = 240.0) -> int:
@@ -111,7 +69,7 @@ def test_kill_9_loses_at_most_the_episode_in_flight(tmp_path, reference):
     rng = random.Random(7)
     for _ in range(3):  # killed at three moments, resumed each time
         resume = ["--resume"] if out.exists() or journal_root(out).exists() else []
-        proc = Started(_cli(out, "--episodes", str(EPISODES), *resume), tmp_path)
+        proc = launch.start(_cli(out, "--episodes", str(EPISODES), *resume), env=ENV, cwd=ROOT, logs=tmp_path)
         before = len(EpisodeJournal(out).seeds()) if journal_root(out).exists() else 0
         journaled = _wait_for_journal(out, before + rng.randint(2, 6), proc)
         proc.send_signal(signal.SIGKILL)
@@ -130,7 +88,9 @@ def test_kill_9_while_a_data_file_is_open_then_resume_gives_the_uninterrupted_re
     """The first report: `kill -9` once LeRobot had written an episode index beside a data file it still had open
     (more than ten episodes in the session), then `--resume`, ended in pyarrow's 'Parquet magic bytes not found'."""
     out = tmp_path / "ds"
-    proc = Started(_cli(out, "--episodes", str(EPISODES), "--commit-interval", "600"), tmp_path)
+    proc = launch.start(
+        _cli(out, "--episodes", str(EPISODES), "--commit-interval", "600"), env=ENV, cwd=ROOT, logs=tmp_path
+    )
     _wait_for_journal(out, 14, proc)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
@@ -144,7 +104,7 @@ def test_kill_9_while_a_data_file_is_open_then_resume_gives_the_uninterrupted_re
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
 def test_sigterm_and_sighup_commit_like_ctrl_c(tmp_path, signum):
     out = tmp_path / "ds"
-    proc = Started(_cli(out, "--episodes", "200", "--workers", "2"), tmp_path)
+    proc = launch.start(_cli(out, "--episodes", "200", "--workers", "2"), env=ENV, cwd=ROOT, logs=tmp_path)
     journaled = _wait_for_journal(out, 3, proc)
     proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=120)
@@ -214,7 +174,7 @@ def test_a_journal_with_episodes_is_never_overwritten_by_accident(tmp_path):
     from kitbench.errors import KitbenchError
 
     out = tmp_path / "ds"
-    proc = Started(_cli(out, "--episodes", "50", "--no-mcap"), tmp_path)
+    proc = launch.start(_cli(out, "--episodes", "50", "--no-mcap"), env=ENV, cwd=ROOT, logs=tmp_path)
     _wait_for_journal(out, 2, proc)
     proc.send_signal(signal.SIGKILL)
     proc.wait()

@@ -23,7 +23,6 @@ from kitbench.evaluation.journal import EvalJournal
 from tests import launch
 from tests.conftest import VULKAN
 from tests.datasets_equal import no_leftovers, same_content
-from tests.test_durability import Started
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ROOT / "eval" / "suites" / "lift_peg_upright_short.toml"
@@ -169,7 +168,7 @@ def test_sigterm_stops_in_one_line_and_the_run_resumes(tmp_path):
     _ok(tmp_path / "twin", args)
     folder = tmp_path / "stopped"
     folder.mkdir()
-    proc = Started(args, tmp_path, env=_env(), cwd=folder)  # a fork of the test's server, as `_run`'s are
+    proc = launch.start(args, env=_env(), cwd=folder, logs=tmp_path)  # a fork of the test's server, as `_run`'s are
     results = EvalJournal(folder / "report").results_path
     deadline = time.monotonic() + 300
     while proc.poll() is None and time.monotonic() < deadline:
