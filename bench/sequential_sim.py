@@ -16,8 +16,9 @@ for the other. Each seed has a latent difficulty shared by both: A succeeds when
 Phi^-1(p_A), B likewise with its own e_B (a Gaussian copula, latent correlation `--rho`, default 0, 0.5 and 0.8).
 The test's error bound does not depend on it; the seeds needed do (fewer discordant seeds, more lopsided).
 
-`--priors 0.25,0.5,1,2` instead compares priors Beta(a, a) of the test (the median seeds at d = 15 and the worst
-false-decision rate over the cells), which is how `kitbench.evaluation.sequential.PRIOR` was chosen.
+`--spending 0.5,0.75,1,1.5` instead compares the exponents rho of the test's spending function alpha * t^rho (the
+false-decision rate, and at d = 15 the power, the median seeds and the cells within 0.6 of the fixed-N test),
+which is how `kitbench.evaluation.sequential.SPENDING` was chosen.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import time
 import numpy as np
 from scipy import stats  # type: ignore[import-untyped]
 
-from kitbench.evaluation.sequential import PRIOR, decides
+from kitbench.evaluation.sequential import SPENDING, decisions
 
 RATES = (0.5, 0.7, 0.9, 0.95, 0.99)
 DIFFERENCES = (0.0, 0.05, 0.10, 0.20)
@@ -60,14 +61,16 @@ def looks(pairs: int, block: int) -> np.ndarray:
     return np.unique(np.r_[np.arange(block, pairs + 1, block), pairs])
 
 
-def race(a_only, b_only, alpha: float, block: int, prior: float = PRIOR):
-    """Each simulated race's outcome: (decision: +1 A, -1 B, 0 none; seeds used)."""
+def race(a_only, b_only, alpha: float, block: int, rho: float = SPENDING):
+    """Each simulated race's outcome: (decision: +1 A, -1 B, 0 none; seeds used), on a suite of as many seeds
+    as the simulation has."""
     at = looks(a_only.shape[1], block)
     a, b = a_only[:, at - 1], b_only[:, at - 1]
-    hit = decides(a, a + b, alpha, prior)
+    decided = decisions(a, a + b, at / a_only.shape[1], alpha, rho)
+    hit = decided != 0
     first = np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
     rows = np.arange(len(first))
-    decision = np.where(first >= 0, np.sign(a[rows, first] - b[rows, first]), 0)
+    decision = np.where(first >= 0, decided[rows, np.maximum(first, 0)], 0)
     used = np.where(first >= 0, at[np.maximum(first, 0)], at[-1])
     return decision, used
 
@@ -110,7 +113,7 @@ def power_matched_n(p_a_only: float, p_b_only: float, power: float, alpha: float
 
 
 def run_cells(
-    runs: int, pairs: int, block: int, alpha: float, rhos, seed: int, prior: float = PRIOR, matched: bool = True
+    runs: int, pairs: int, block: int, alpha: float, rhos, seed: int, spending: float = SPENDING, matched: bool = True
 ) -> list[dict]:
     rng = np.random.default_rng(seed)
     rows = []
@@ -120,7 +123,7 @@ def run_cells(
                 p_b = p_a - d
                 pa_only, pb_only = pair_probabilities(p_a, p_b, rho)
                 a, b = simulate(pa_only, pb_only, runs, pairs, rng)
-                decision, used = race(a, b, alpha, block, prior)
+                decision, used = race(a, b, alpha, block, spending)
                 row = {
                     "rho": rho,
                     "p_a": p_a,
@@ -178,15 +181,20 @@ def print_table(rows: list[dict], alpha: float) -> None:
           f"{sum(r <= 0.6 for r in ratios)} of {len(ratios)} cells")  # fmt: skip
 
 
-def compare_priors(priors, runs: int, pairs: int, block: int, alpha: float, rhos, seed: int) -> None:
-    print("| prior a | worst false-decision rate | median seeds at d = 15 (mean over cells) | power at d = 15 (mean) |")
-    print("|---|---|---|---|")
-    for prior in priors:
-        rows = run_cells(runs, pairs, block, alpha, rhos, seed, prior, matched=False)
+def compare_spending(exponents, runs: int, pairs: int, block: int, alpha: float, rhos, seed: int) -> None:
+    print(
+        "| rho | worst false-decision rate | at d = 15: power (mean over cells) | median seeds (mean) | "
+        "median / fixed-N: cells <= 0.6 | worst cell |"
+    )
+    print("|---|---|---|---|---|---|")
+    for rho in exponents:
+        rows = run_cells(runs, pairs, block, alpha, rhos, seed, rho)
         at = [r for r in rows if r["d"] == POWER_MATCHED]
+        ratios = [r["median"] / r["fixed_n"] for r in at if r["fixed_n"]]
         print(
-            f"| {prior:g} | {max(r['false'] for r in rows):.2%} | {np.mean([r['median'] for r in at]):.1f} | "
-            f"{np.mean([r['power'] for r in at]):.1%} |"
+            f"| {rho:g} | {max(r['false'] for r in rows):.2%} | {np.mean([r['power'] for r in at]):.1%} | "
+            f"{np.mean([r['median'] for r in at]):.1f} | {sum(x <= 0.6 for x in ratios)} of {len(ratios)} | "
+            f"{max(ratios):.2f} |"
         )
 
 
@@ -198,13 +206,13 @@ def main() -> None:
     parser.add_argument("--alpha", type=float, default=0.05)
     parser.add_argument("--rho", default=",".join(map(str, RHOS)), help="latent correlations, comma-separated")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--priors", default=None, help="compare these priors a of Beta(a, a) instead")
+    parser.add_argument("--spending", default=None, help="compare these exponents rho of the spending function")
     args = parser.parse_args()
     rhos = [float(r) for r in args.rho.split(",")]
     started = time.monotonic()
-    if args.priors:
-        priors = [float(p) for p in args.priors.split(",")]
-        compare_priors(priors, args.runs, args.max_pairs, args.block, args.alpha, rhos, args.seed)
+    if args.spending:
+        exponents = [float(p) for p in args.spending.split(",")]
+        compare_spending(exponents, args.runs, args.max_pairs, args.block, args.alpha, rhos, args.seed)
     else:
         rows = run_cells(args.runs, args.max_pairs, args.block, args.alpha, rhos, args.seed)
         print_table(rows, args.alpha)

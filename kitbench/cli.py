@@ -200,7 +200,7 @@ COMMANDS = {
         skip=("seed", "save_dataset"),
     ),
     "race": Command(
-        "score two policies on one suite's seeds in order until an anytime-valid paired test decides which is "
+        "score two policies on one suite's seeds in order until a group-sequential paired test decides which is "
         "better (or the suite runs out): the episodes used, the decision and the difference's interval",
         "kitbench.evaluation.race:main",
         (

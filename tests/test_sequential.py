@@ -1,4 +1,4 @@
-"""`kitbench race` and its anytime-valid paired test (`kitbench.evaluation.sequential`): the test's error rate at
+"""`kitbench race` and its group-sequential paired test (`kitbench.evaluation.sequential`): the test's error rate at
 no difference stays within alpha however often it is looked at, the race stops early on a clear difference and
 leaves two ordinary reports `kitbench compare` reads, a killed race resumes into the race an uninterrupted one
 runs, `kitbench eval --stop-after` extends by `--resume` into the uninterrupted report, and bad input is one line."""
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy import integrate, stats  # type: ignore[import-untyped]
+from scipy import stats  # type: ignore[import-untyped]
 
 from bench.sequential_sim import naive_repeated, pair_probabilities, race, simulate
 from kitbench import faults
@@ -46,23 +46,86 @@ def test_error_rate_at_no_difference_stays_within_alpha(p, rho, block):
     assert used.max() == 200
 
 
-def test_evidence_is_the_mixture_likelihood_ratio():
-    """M_n(theta) against the integral it stands for (uniform prior), and the decision with its intervals: the
-    test decides exactly when the difference's interval leaves out 0, whose sign is the decision's."""
-    s, n, theta = 9, 12, 0.4
-    integral = integrate.quad(lambda q: q**s * (1 - q) ** (n - s), 0, 1)[0] / (theta**s * (1 - theta) ** (n - s))
-    assert math.isclose(math.exp(sequential.log_evidence(s, n, theta=theta)), integral, rel_tol=1e-9)
-    for pairs in (10, 40):
-        for a_only in range(0, pairs + 1, 3):
-            for b_only in range(0, pairs - a_only + 1, 3):
-                r = sequential.assess(pairs, a_only, b_only, 0.05)
-                low, high = r.interval
-                assert low <= r.difference <= high
-                assert r.decided == (low > 0 or high < 0)
-                assert r.decision == (
-                    sequential.A_BETTER if low > 0 else sequential.B_BETTER if high < 0 else r.decision
-                )
-                assert (r.evidence >= r.threshold) == r.decided
+def _first_crossings(signs: np.ndarray, ks, lower, upper) -> np.ndarray:
+    """Each sign sequence's first look at which S crossed: +1 upper, -1 lower, 0 never (per look, one-hot)."""
+    out = np.zeros((len(signs), len(ks)), dtype=np.int64)
+    alive = np.ones(len(signs), dtype=bool)
+    for j, k in enumerate(ks):
+        s = signs[:, :k].sum(axis=1)
+        hit = np.where(s >= upper[j], 1, np.where(s <= lower[j], -1, 0)) * alive
+        out[:, j] = hit
+        alive &= hit == 0
+    return out
+
+
+@pytest.mark.parametrize("theta", [0.5, 0.3])
+def test_boundaries_spend_what_the_spending_function_allows_and_no_less(theta):
+    """Every sequence of 12 discordant seeds enumerated: at each look, each side's chance of a first crossing so
+    far is at most alpha/2 * t^rho, and moving that look's boundary one seed inwards would exceed it."""
+    ks, fractions, alpha = [3, 6, 8, 12], [0.25, 0.5, 0.75, 1.0], 0.3
+    signs = (np.arange(2**12)[:, None] >> np.arange(12)) & 1
+    weights = np.prod(np.where(signs == 1, theta, 1 - theta), axis=1)
+    lower, upper = (b[0] for b in sequential.boundaries(ks, fractions, alpha, theta))
+    assert (upper[:-1] <= np.array(ks[:-1])).any() and (lower >= 0).any()  # the case does cross somewhere
+    checked = 0
+    for j in range(len(ks)):
+        allowed = sequential.spent(fractions[j], alpha / 2)
+        for side, bound in ((1, upper), (-1, lower)):
+            crossed = _first_crossings(signs, ks, lower, upper)[:, : j + 1]
+            assert weights @ (crossed == side).any(axis=1) <= allowed + 1e-12
+            inward = bound.copy()
+            inward[j] -= side  # one seed nearer the middle
+            if (inward[j] - lower[j]) * (upper[j] - inward[j]) <= 0:
+                continue  # it would meet the other side's boundary
+            moved = (lower, inward) if side == 1 else (inward, upper)
+            crossed = _first_crossings(signs, ks, *moved)[:, : j + 1]
+            assert weights @ (crossed == side).any(axis=1) > allowed, (theta, j, side)
+            checked += 1
+    assert checked >= 6
+
+
+def test_decision_and_interval_agree_and_the_interval_ends_where_theta_is_rejected():
+    """At random looks of random races: the test decides exactly when the difference's interval leaves out 0, on
+    the interval's side; theta's interval holds the estimate and its ends are where theta's own test turns."""
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        total = int(rng.choice([50, 100, 200]))
+        theta, d = rng.uniform(0.2, 0.95), rng.uniform(0.1, 0.6)
+        outcome = rng.choice(3, size=total, p=[d * theta, d * (1 - theta), 1 - d])
+        a_only, b_only = np.cumsum(outcome == 0), np.cumsum(outcome == 1)
+        at = list(range(10, total + 1, 10))[: rng.integers(1, 8)]
+        looks = [(n, int(a_only[n - 1]), int(b_only[n - 1])) for n in at]
+        r = sequential.assess(looks, total, 0.05)
+        low, high = r.interval
+        assert low <= r.difference <= high
+        assert r.decided == (low > 0 or high < 0)
+        if r.decided:
+            assert r.decision == (sequential.A_BETTER if low > 0 else sequential.B_BETTER)
+        s, k = r.a_only, r.a_only + r.b_only
+        t_lo, t_hi = r.theta_interval
+        assert t_lo <= (s / k if k else 0.5) <= t_hi
+        ks, fractions = [a + b for _, a, b in looks], [n / total for n, _, _ in looks]
+        for end, outwards in ((t_lo, -1), (t_hi, 1)):
+            if 0 < end < 1 and abs(end - 0.5) > 1e-6:
+                for theta_, kept in ((end - outwards * 1e-6, True), (end + outwards * 1e-6, False)):
+                    lower, upper = sequential.boundaries(ks, fractions, 0.045, theta_)
+                    assert (lower[0, -1] < s < upper[0, -1]) == kept, (looks, end, theta_)
+
+
+def test_repeated_intervals_hold_theta_at_every_look_at_once():
+    """2,000 runs of 200 seeds at theta = 0.7, D = 0.4, looked at every 10 seeds: theta's own test (whose
+    inversion is the interval) rejects the truth at some look in at most alpha of them, and spends nearly all of
+    it (a test that kept far more would be needlessly slow)."""
+    rng = np.random.default_rng(11)
+    runs, theta, alpha = 2000, 0.7, 0.045
+    discordant = rng.random((runs, 200)) < 0.4
+    wins = discordant & (rng.random((runs, 200)) < theta)
+    at = np.arange(10, 201, 10)
+    ks, s = np.cumsum(discordant, axis=1)[:, at - 1], np.cumsum(wins, axis=1)[:, at - 1]
+    lower, upper = sequential.boundaries(ks, at / 200, alpha, theta)
+    missed = np.mean(((s <= lower) | (s >= upper)).any(axis=1))
+    assert missed <= alpha + 2 * math.sqrt(alpha * (1 - alpha) / runs)
+    assert missed >= alpha / 2
 
 
 def test_theta_interval_covers_at_every_look():
@@ -190,4 +253,22 @@ def test_resume_with_other_settings_or_a_finished_race_is_refused(finished_race,
         code = main(["race", *RACE, "--out", str(out), *extra])
         err = capsys.readouterr().err
         assert code == 2 and says in err and err.count("\n") == 1, err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_a_race_begun_under_another_test_is_not_resumed(finished_race, tmp_path, capsys):
+    """A race whose race.json names another test (the mixture test of race.json version 1): --resume is refused in
+    one line naming the test, nothing changed."""
+    import shutil
+
+    out = tmp_path / "race"
+    shutil.copytree(finished_race[0], out)
+    stored = json.loads((out / "race.json").read_text())
+    stored["settings"]["test"] = {"name": "mixture sequential probability ratio test of McNemar's discordant seeds"}
+    stored["finished"] = False
+    (out / "race.json").write_text(json.dumps(stored))
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    code = main(["race", *RACE, "--out", str(out), "--resume"])
+    err = capsys.readouterr().err
+    assert code == 2 and "test: race {'name': \"mixture" in err and err.count("\n") == 1, err
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

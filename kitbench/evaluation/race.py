@@ -1,5 +1,5 @@
 """`kitbench race`: two policies scored on one suite's seeds in order, a block of seeds at a time, until the
-anytime-valid paired test (`kitbench.evaluation.sequential`) decides which is better, or the suite runs out.
+group-sequential paired test (`kitbench.evaluation.sequential`) decides which is better, or the suite runs out.
 
 The two are ordinary `kitbench eval` runs in `<out>/a` and `<out>/b`, each look extending both with `--resume
 --stop-after k` (`runner.run_eval`): every scored episode is in their journals, so a killed race resumes (`kitbench
@@ -29,12 +29,12 @@ from kitbench.policies.lerobot_policy import parse_option
 from kitbench.recording.durable import write_durably
 
 RACE_JSON = "race.json"
-RACE_VERSION = 1
+RACE_VERSION = 2
 SIDES = ("a", "b")
 TEST = {
-    "name": "mixture sequential probability ratio test of McNemar's discordant seeds",
-    "prior": f"Beta({sequential.PRIOR:g}, {sequential.PRIOR:g})",
-    "reference": "Howard, Ramdas, McAuliffe, Sekhon 2021, Ann. Statist. 49(2):1055-1080 (beta-binomial mixture)",
+    "name": "exact group-sequential McNemar test of the discordant seeds",
+    "spending": f"alpha * t^{sequential.SPENDING:g}, t = seeds scored / seeds in the suite",
+    "reference": "Lan, DeMets 1983, Biometrika 70(3):659-663; Kim, DeMets 1987, Biometrika 74(1):149-154",
 }
 
 
@@ -126,6 +126,7 @@ def _race_settings(config: RaceConfig) -> dict:
             "suite": {"name": config.a.suite.name, "digest": suite_digest(config.a.suite)},
             "alpha": s.alpha,
             "block": s.block,
+            "test": TEST,
         }
     )
 
@@ -227,7 +228,6 @@ def _race(config: RaceConfig, now: dict, engines: dict, progress: bool, say) -> 
     race: dict[str, Any] = {
         "race_version": RACE_VERSION,
         "settings": now,
-        "test": TEST,
         "suite_episodes": total,
         "looks": [],
         "finished": False,
@@ -235,6 +235,7 @@ def _race(config: RaceConfig, now: dict, engines: dict, progress: bool, say) -> 
     _write(out, race)
     begun = dict.fromkeys(sides, s.resume)  # a fresh race starts each evaluation (--overwrite: anew) at its first look
     seeds = 0
+    history: list[tuple[int, int, int]] = []  # (seeds, only A succeeded, only B) at each look
     while seeds < total:
         seeds = min(seeds + s.block, total)
         outcomes, reported = {}, {}
@@ -247,7 +248,8 @@ def _race(config: RaceConfig, now: dict, engines: dict, progress: bool, say) -> 
         a, b = outcomes["a"], outcomes["b"]
         a_only = sum(x and not y for x, y in zip(a, b, strict=True))
         b_only = sum(y and not x for x, y in zip(a, b, strict=True))
-        assessment = sequential.assess(seeds, a_only, b_only, s.alpha)
+        history.append((seeds, a_only, b_only))
+        assessment = sequential.assess(history, total, s.alpha)
         final = assessment.decided or seeds == total
         for name, side in sides.items():
             if final and not reported[name]:  # a replayed last look: its reports are written now
@@ -278,14 +280,23 @@ def _verdict(assessment: sequential.Assessment, a: int, b: int) -> dict:
 def look_line(look: dict) -> str:
     return (
         f"look at {look['pairs']} seeds: A {look['a_successes']}/{look['pairs']}, B {look['b_successes']}/"
-        f"{look['pairs']}, discordant {look['a_only']} for A, {look['b_only']} for B: evidence "
-        f"{look['evidence']:.3g} (decides at {look['threshold']:.3g})"
+        f"{look['pairs']}, discordant {look['a_only']} for A, {look['b_only']} for B: "
+        + (
+            f"decides when one side has {look['needs']} of them"
+            if look["needs"] <= look["a_only"] + look["b_only"]
+            else "no count of them decides yet"
+        )
     )
 
 
 def _label(side: dict) -> str:
     options = ", ".join(f"{k}={v}" for k, v in side["options"].items())
     return f"{side['policy']} ({options})" if options else side["policy"]
+
+
+def _percent(x: float) -> str:
+    """A signed percentage to 0.1 point, or to two digits where that would round a nonzero end to 0."""
+    return f"{x:+.1%}" if x == 0 or abs(x) >= 0.0005 else f"{100 * x:+.2g}%"
 
 
 def summary_lines(race: dict, out: Path) -> list[str]:
@@ -299,7 +310,8 @@ def summary_lines(race: dict, out: Path) -> list[str]:
         f"decision: {said} (A {_label(race['settings']['a'])}, B {_label(race['settings']['b'])})",
         (
             f"success: A {race['success']['a']['rate']:.1%}, B {race['success']['b']['rate']:.1%}; A - B "
-            f"{race['difference']:+.1%} (anytime-valid {1 - alpha:.0%} interval {low:+.1%} to {high:+.1%})"
+            f"{race['difference']:+.1%} ({1 - alpha:.0%} interval valid at every look {_percent(low)} to "
+            f"{_percent(high)})"
         ),
         f"race: {out / RACE_JSON}; reports: {out / 'a'}, {out / 'b'} (kitbench compare reads them)",
     ]
