@@ -120,7 +120,7 @@ def test_sharded_recording_on_ray_writes_the_same_dataset_as_one_local_writer(cl
         executor="ray",
         workers=2,
         ray_address=cluster.address,
-        shard_episodes=2,
+        shard_episodes=EPISODES // 2,  # a shard an actor
     )
     assert record(config, progress=False).stored == EPISODES
     same_content(local_dataset, out)
@@ -144,7 +144,10 @@ def local_camera(tmp_path_factory):
     return recorded
 
 
-@pytest.mark.parametrize("shard_episodes", [0, 1])
+# Sharded (1), the frames are encoded into a shard in the actor: a variant whose parts make test runs already (a
+# sharded recording on Ray above, shards' videos merged in test_merge.py) beside the frames' way from the actor
+# to the writer (0), run by make test-all and CI.
+@pytest.mark.parametrize("shard_episodes", [0, pytest.param(1, marks=pytest.mark.slow)])
 def test_camera_recording_on_ray_decodes_to_the_same_frames_as_local(
     needs_vulkan, cluster, local_camera, tmp_path, shard_episodes
 ):
@@ -182,7 +185,7 @@ def test_eval_on_ray_gives_the_same_report_numbers_as_local(cluster, tmp_path):
     assert ray_run == local
 
 
-def _record_command(out: Path, address: str, *extra: str, episodes: int = EPISODES) -> list[str]:
+def _record_command(out: Path, address: str, *extra: str, episodes: int = EPISODES, workers: int = 2) -> list[str]:
     return [
         sys.executable,
         "-m",
@@ -197,17 +200,25 @@ def _record_command(out: Path, address: str, *extra: str, episodes: int = EPISOD
         "--executor",
         "ray",
         "--workers",
-        "2",
+        str(workers),
         "--ray-address",
         address,
         *extra,
     ]
 
 
-def _start(command: list[str]) -> subprocess.Popen:
-    """A run to watch and kill while it runs: a process of its own."""
+def _start(command: list[str], logs: Path) -> launch.Started:
+    """A run to watch and kill while it runs: a fork of the command server (`tests.launch`), a process of its own
+    spared the interpreter's start, its output in files in `logs`."""
     env = {**os.environ, **LOOPBACK_ENV, "HF_HUB_OFFLINE": "1"}
-    return subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return launch.start(command, cwd=ROOT, env=env, logs=logs)
+
+
+def _end(proc: launch.Started) -> tuple[str, str]:
+    """SIGKILL `proc` unless it has ended, and its output."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+    return proc.communicate(timeout=60)
 
 
 def _run(command: list[str]) -> subprocess.CompletedProcess:
@@ -223,7 +234,7 @@ def _seeds(out: Path) -> list[int]:
 
 def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, local_dataset, tmp_path):
     out = tmp_path / "lpu"
-    proc = _start(_record_command(out, cluster.address))
+    proc = _start(_record_command(out, cluster.address), tmp_path)
     journal = out.with_name(out.name + ".journal")
     killed = None
     deadline = time.monotonic() + 240
@@ -236,10 +247,9 @@ def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, 
                     killed = workers[0]
                     os.kill(killed, signal.SIGKILL)
             time.sleep(0.05)
-        stdout, stderr = proc.communicate(timeout=300)
+        proc.wait(timeout=300)
     finally:
-        if proc.poll() is None:
-            proc.kill()
+        stdout, stderr = _end(proc)
     assert killed is not None, "no Ray worker to kill before the recording ended"
     assert proc.returncode == 0, stderr[-3000:]
     assert f"episodes stored: {EPISODES}" in stdout
@@ -249,14 +259,13 @@ def test_kill_minus_nine_of_a_ray_worker_mid_recording_changes_nothing(cluster, 
 
 def test_resume_after_the_driver_is_killed_continues_from_the_last_committed_episode(cluster, local_dataset, tmp_path):
     out = tmp_path / "lpu"
-    proc = _start(_record_command(out, cluster.address, "--commit-interval", "0"))
+    proc = _start(_record_command(out, cluster.address, "--commit-interval", "0"), tmp_path)
     deadline = time.monotonic() + 240
     try:
         while proc.poll() is None and len(_seeds(out)) < 2 and time.monotonic() < deadline:
             time.sleep(0.05)
     finally:
-        proc.kill()
-        proc.communicate()
+        _end(proc)
     committed = _seeds(out)
     assert 2 <= len(committed) < EPISODES and committed == list(range(len(committed)))
     resumed = _run(_record_command(out, cluster.address, "--resume"))
@@ -267,7 +276,12 @@ def test_resume_after_the_driver_is_killed_continues_from_the_last_committed_epi
 
 @pytest.mark.parametrize(
     ("extra", "fault"),
-    [((), "writer.saved:4"), (("--shard-episodes", "2"), "shards.merged:1")],
+    [
+        ((), "writer.saved:4"),
+        # a variant whose parts make test runs already: a sharded kill (test_kill_points_writers.py, the same point)
+        # and a sharded recording on Ray (above); run by make test-all and CI
+        pytest.param(("--shard-episodes", "2"), "shards.merged:1", marks=pytest.mark.slow),
+    ],
     ids=["one writer, a data file open", "sharded, the shards merged but not in place"],
 )
 def test_a_ray_recording_whose_driver_is_killed_at_a_fault_point_resumes_into_the_local_one(
@@ -290,9 +304,10 @@ def test_an_evaluation_on_ray_whose_driver_is_killed_resumes_into_the_uninterrup
     from tests.test_eval_resume import _eval_args, _killed, _ok, _resumed, same_report
 
     on_ray = ("--executor", "ray", "--workers", "2", "--ray-address", cluster.address)
-    _ok(tmp_path / "twin", _eval_args(*on_ray))
-    _killed(tmp_path / "killed", _eval_args(*on_ray), "eval.journaled:3")
-    _ok(tmp_path / "killed", _eval_args(*on_ray, "--resume"))
+    # four episodes: three journaled before the kill, one run by the resume
+    _ok(tmp_path / "twin", _eval_args(*on_ray, episodes=4))
+    _killed(tmp_path / "killed", _eval_args(*on_ray, episodes=4), "eval.journaled:3")
+    _ok(tmp_path / "killed", _eval_args(*on_ray, "--resume", episodes=4))
     same_report(tmp_path / "twin" / "report", tmp_path / "killed" / "report")
     assert _resumed(tmp_path / "killed" / "report") == 3
 
@@ -372,18 +387,19 @@ def test_a_lost_head_ends_the_recording_in_one_line_saying_resume(tmp_path):
         os.environ[key] = value
     doomed = Cluster(initialize_head=True, head_node_args={"node_ip_address": "127.0.0.1", "num_cpus": 2})
     out, address = tmp_path / "lpu", doomed.address
-    # Episodes enough that the recording cannot finish between its first commit and the head's removal.
-    proc = _start(_record_command(out, address, "--commit-interval", "0", episodes=10 * EPISODES))
+    # Episodes enough that the recording cannot finish between its first commit and the head's removal; one actor:
+    # the cluster goes whole, however many it runs.
+    command = _record_command(out, address, "--commit-interval", "0", episodes=10 * EPISODES, workers=1)
+    proc = _start(command, tmp_path)
     deadline = time.monotonic() + 240
     try:
         while proc.poll() is None and len(_seeds(out)) < 1 and time.monotonic() < deadline:
             time.sleep(0.05)
         assert proc.poll() is None, proc.communicate()[1][-3000:]
         doomed.remove_node(doomed.head_node, allow_graceful=False)
-        _, stderr = proc.communicate(timeout=300)
+        proc.wait(timeout=300)
     finally:
-        if proc.poll() is None:
-            proc.kill()
+        _, stderr = _end(proc)
         doomed.shutdown()
     lines = [line for line in stderr.splitlines() if line.startswith("kitbench record: error:")]
     assert proc.returncode == 2 and len(lines) == 1, stderr[-3000:]
