@@ -59,7 +59,8 @@ def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeyp
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", **loop.train_env}
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '')}"
     for command, tiny in (
-        (loop.record, ["--episodes", "2", "--no-mcap"]),
+        # one recording worker: the recipe's two would each start an interpreter of their own for one episode
+        (loop.record, ["--episodes", "2", "--no-mcap", "--workers", "1"]),
         (loop.train, ["--steps=2", "--save_freq=2"]),
         (loop.score, ["--episodes", "2"]),
     ):

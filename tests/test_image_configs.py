@@ -55,15 +55,21 @@ def cheap_inference(policy: dict) -> list[str]:
 
 
 # Configs whose run repeats the code path of a twin that make test runs (`make test-all` and CI run them too). The
-# three LiftPegUpright ones differ from their twin only in camera size (the 96-pixel twin is trained and scored at a
-# size not the default; the default size's path is run by act_lift_peg_upright_rgb, diffusion_lift_peg_upright_rgb
-# and act_lift_peg_upright_fetch_rgb). act_assembling_kits_rgb is the two-camera AssemblingKits ACT of its CPU twin
-# with GPU settings (device cuda overridden, no amp: as act_lift_peg_upright_rgb) on the 128-pixel recipe that
-# diffusion_assembling_kits_rgb trains on.
+# three LiftPegUpright ones at 128 pixels for 2 CPU cores differ from their twin in robot or camera size only: the ACT
+# CPU configs (use_amp, the `peg` view) are run by act_lift_peg_upright_so101_rgb_96_cpu, the Diffusion one by
+# diffusion_lift_peg_upright_rgb_96_cpu, and the default size's path by act_lift_peg_upright_rgb,
+# act_lift_peg_upright_fetch_rgb and diffusion_assembling_kits_rgb. act_lift_peg_upright_rgb_96_cpu is the Panda's
+# twin of act_lift_peg_upright_so101_rgb_96_cpu (ACT, use_amp, the `peg` view at 96x96); test_demo's closing loop
+# records, trains and scores it as well. diffusion_lift_peg_upright_rgb is diffusion_assembling_kits_rgb's GPU
+# Diffusion (device cuda overridden, no amp, 128 pixels) on the recipe act_lift_peg_upright_rgb records and trains
+# on. act_assembling_kits_rgb is the two-camera AssemblingKits ACT of its CPU twin with GPU settings (device cuda
+# overridden, no amp: as act_lift_peg_upright_rgb) on the 128-pixel recipe that diffusion_assembling_kits_rgb trains on.
 SLOW_TWIN = {
-    "act_lift_peg_upright_rgb_cpu": "act_lift_peg_upright_rgb_96_cpu",
+    "act_lift_peg_upright_rgb_cpu": "act_lift_peg_upright_so101_rgb_96_cpu",
+    "act_lift_peg_upright_rgb_96_cpu": "act_lift_peg_upright_so101_rgb_96_cpu",
     "act_lift_peg_upright_so101_rgb_cpu": "act_lift_peg_upright_so101_rgb_96_cpu",
     "diffusion_lift_peg_upright_rgb_cpu": "diffusion_lift_peg_upright_rgb_96_cpu",
+    "diffusion_lift_peg_upright_rgb": "diffusion_assembling_kits_rgb",
     "act_assembling_kits_rgb": "act_assembling_kits_rgb_cpu",
 }
 CASES = [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.stem in SLOW_TWIN else []) for p in IMAGE_CONFIGS]

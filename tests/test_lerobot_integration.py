@@ -51,16 +51,20 @@ def checkpoint(tmp_path_factory):
     return ckpt
 
 
-def test_env_plugin_is_discovered_by_lerobot():
+def test_env_plugin_is_discovered_by_lerobot(tmp_path):
+    # a fork of the test server (tests/launch.py), which imports lerobot but not the plugin: the first check says so
     code = (
+        "from lerobot.envs.configs import EnvConfig\n"
+        "assert 'kitbench' not in EnvConfig.get_known_choices(), 'the plugin was imported before discovery'\n"
         "from lerobot.utils.import_utils import register_third_party_plugins\n"
         "register_third_party_plugins()\n"
-        "from lerobot.envs.configs import EnvConfig\n"
         "cls = EnvConfig.get_choice_class('kitbench')\n"
         "cfg = cls(task='AssemblingKits-v1', obs_type='pixels_state')\n"
         "print(sorted(cfg.features_map.values()))\n"
     )
-    out = launch.run([sys.executable, "-c", code], capture_output=True, text=True, env=OFFLINE, timeout=300)
+    script = tmp_path / "discover.py"
+    script.write_text(code)
+    out = launch.run([sys.executable, str(script)], capture_output=True, text=True, env=OFFLINE, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "observation.images.hand_camera" in out.stdout and "observation.environment_state" in out.stdout
 
@@ -156,51 +160,64 @@ def test_open_loop_bench_compares_the_checkpoint_with_the_expert_on_the_experts_
     assert max(r["horizontal_mm"][1] for r in rows) > 1.0
 
 
-def _lerobot_eval(checkpoint, cwd, out, batch_size, use_async, *extra) -> dict:
-    """lerobot-eval of the checkpoint on LiftPegUpright-v1 through the plugin, batch_size episodes at once;
-    returns its eval_info.json."""
-    cmd = [
-        str(BIN / "lerobot-eval"),
-        f"--policy.path={checkpoint}",
-        "--policy.device=cpu",
-        "--env.type=kitbench",
-        "--env.task=LiftPegUpright-v1",
-        "--env.control_mode=pd_joint_pos",
-        f"--eval.n_episodes={batch_size}",
-        f"--eval.batch_size={batch_size}",
-        f"--eval.use_async_envs={str(use_async).lower()}",
-        f"--output_dir={out}",
-        *extra,
-    ]
-    run = launch.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    return json.loads((Path(out) / "eval_info.json").read_text())
+FIRST = 1_000_000  # the first seed of every lerobot-eval and kitbench eval run below
+
+
+@pytest.fixture(scope="module")
+def lerobot_eval(checkpoint, tmp_path_factory):
+    """lerobot-eval of the checkpoint on LiftPegUpright-v1 through the plugin, seeds FIRST on: `lerobot_eval(batch_size,
+    use_async)` runs batch_size episodes at once and returns its eval_info.json; a run is made once per module and
+    shared by the tests that ask for the same one."""
+    done: dict[tuple[int, bool], dict] = {}
+
+    def evaluated(batch_size: int, use_async: bool) -> dict:
+        if (batch_size, use_async) not in done:
+            cwd = tmp_path_factory.mktemp(f"lerobot_eval_{batch_size}_{use_async}")
+            cmd = [
+                str(BIN / "lerobot-eval"),
+                f"--policy.path={checkpoint}",
+                "--policy.device=cpu",
+                "--env.type=kitbench",
+                "--env.task=LiftPegUpright-v1",
+                "--env.control_mode=pd_joint_pos",
+                f"--eval.n_episodes={batch_size}",
+                f"--eval.batch_size={batch_size}",
+                f"--eval.use_async_envs={str(use_async).lower()}",
+                f"--output_dir={cwd / 'eval'}",
+                f"--seed={FIRST}",
+            ]
+            run = launch.run(cmd, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=cwd)
+            assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+            done[batch_size, use_async] = json.loads((cwd / "eval" / "eval_info.json").read_text())
+        return done[batch_size, use_async]
+
+    return evaluated
 
 
 @pytest.mark.parametrize(
     "batch_size,use_async",
-    # async: the plugin's env in lerobot's async vector env, as the checkpoint's in-training evaluation runs it
-    [(1, False), pytest.param(2, True, marks=pytest.mark.slow)],
+    # sync: the batch of 4 the comparison with kitbench eval below reads (one run for both); async: the plugin's env
+    # in lerobot's async vector env, as the checkpoint's in-training evaluation runs it
+    [(4, False), pytest.param(2, True, marks=pytest.mark.slow)],
     ids=["sync", "async"],
 )
-def test_lerobot_eval_runs_on_the_kitbench_env(checkpoint, tmp_path, needs_vulkan, batch_size, use_async):
+def test_lerobot_eval_runs_on_the_kitbench_env(lerobot_eval, needs_vulkan, batch_size, use_async):
     """Async vector-env workers unpickle the env config: its class must be importable at module level, and every
     sub-env must answer `task` and `task_description`."""
-    info = _lerobot_eval(checkpoint, tmp_path, tmp_path / "eval", batch_size, use_async)
+    info = lerobot_eval(batch_size, use_async)
     assert info["overall"]["n_episodes"] == batch_size
 
 
-def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(checkpoint, tmp_path, needs_vulkan):
+def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(lerobot_eval, checkpoint, tmp_path, needs_vulkan):
     """The same checkpoint on the same seeds: lerobot-eval (4 envs at once through the plugin) and kitbench eval
     agree episode by episode on success and on the summed reward, so scores from either tool compare."""
-    first = 1_000_000
-    info = _lerobot_eval(checkpoint, tmp_path, tmp_path / "lerobot", 4, False, f"--seed={first}")
+    info = lerobot_eval(4, False)
     assert info["overall"]["n_episodes"] == 4
     # eval_info.json keeps per-task lists, not the seeds; lerobot-eval seeds episode i of a batch with seed + i.
     (task,) = info["per_task"]
     metrics = task["metrics"]
     theirs = {
-        first + i: {"success": success, "sum_reward": reward}
+        FIRST + i: {"success": success, "sum_reward": reward}
         for i, (success, reward) in enumerate(zip(metrics["successes"], metrics["sum_rewards"], strict=True))
     }
     scored = [
@@ -209,14 +226,14 @@ def test_lerobot_eval_at_batch_4_scores_as_kitbench_eval_does(checkpoint, tmp_pa
         "--task=LiftPegUpright-v1",
         f"--policy=lerobot:{checkpoint}",
         "--episodes=4",
-        f"--seed={first}",
+        f"--seed={FIRST}",
         "--videos=0",
         f"--out={tmp_path / 'kitbench'}",
     ]
     run = launch.run(scored, capture_output=True, text=True, env=OFFLINE, timeout=900, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     ours = {e["seed"]: e for e in json.loads((tmp_path / "kitbench" / "report.json").read_text())["per_episode"]}
-    assert sorted(theirs) == sorted(ours) == list(range(first, first + 4))
+    assert sorted(theirs) == sorted(ours) == list(range(FIRST, FIRST + 4))
     for seed, episode in ours.items():
         assert theirs[seed]["success"] == episode["success"]
         assert theirs[seed]["sum_reward"] == pytest.approx(episode["episode_return"], rel=1e-4)
