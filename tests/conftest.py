@@ -76,23 +76,23 @@ def pytest_runtest_logreport(report):
 # end while the other worker idles. Longest first, the short files fill in at the end. A file not named keeps its
 # place.
 LONGEST_FIRST = (
-    "test_ray_executor.py",  # 345
-    "test_image_configs.py",  # 174
-    "test_kill_points.py",  # 124
-    "test_eval_resume.py",  # 119
-    "test_train_levers.py",  # 113
-    "test_demo.py",  # 96
-    "test_lerobot_integration.py",  # 84
-    "test_kill_points_writers.py",  # 75
-    "test_training_input.py",  # 67
-    "test_eval_inference.py",  # 62
-    "test_reproduce.py",  # 60
-    "test_kit_physics.py",  # 57
-    "test_durability.py",  # 52
-    "test_denormals.py",  # 50
-    "test_shards.py",  # 50
-    "test_damage.py",  # 45
-    "test_convert.py",  # 42
+    "test_ray_executor.py",  # 180
+    "test_image_configs.py",  # 122
+    "test_eval_resume.py",  # 81
+    "test_kill_points.py",  # 70
+    "test_lerobot_integration.py",  # 59
+    "test_train_levers.py",  # 53
+    "test_demo.py",  # 45
+    "test_reproduce.py",  # 45
+    "test_kit_physics.py",  # 42
+    "test_eval_inference.py",  # 42
+    "test_training_input.py",  # 40
+    "test_kill_points_writers.py",  # 40
+    "test_damage.py",  # 40
+    "test_denormals.py",  # 38
+    "test_convert.py",  # 35
+    "test_shipped_configs.py",  # 33
+    "test_shards.py",  # 32
 )
 
 
