@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from kitbench import lerobot_schema
 from kitbench.errors import KitbenchError, one_line
 from kitbench.metadata import (
     CARRIER,
@@ -215,77 +216,6 @@ def _episodes(root: Path, info: dict, tasks: dict[int, str]) -> dict[str, np.nda
     return arrays
 
 
-def _hf_feature(entry: dict) -> dict | None:
-    """The Hugging Face feature LeRobot writes a data column of feature `entry` as (`get_hf_features_from_features`,
-    its `shape=(1,)` columns saved as values), without importing lerobot; None for a video (not in the data)."""
-    dtype, shape = entry["dtype"], entry["shape"]
-    if dtype == "video":
-        return None
-    if dtype == "image":
-        return {"_type": "Image"}
-    if shape == [1]:
-        return {"dtype": dtype, "_type": "Value"}
-    if len(shape) == 1:
-        return {"feature": {"dtype": dtype, "_type": "Value"}, "length": shape[0], "_type": "List"}
-    return {"shape": shape, "dtype": dtype, "_type": f"Array{len(shape)}D"}
-
-
-def _stored(feature: Any) -> Any:
-    """A stored Hugging Face feature in the form `_hf_feature` gives: a one-element list as its value, a
-    `Sequence` (older `datasets`) as a `List`, an image by its type, shapes as lists."""
-    if not isinstance(feature, dict):
-        return feature
-    kind = feature.get("_type")
-    if kind == "Image":
-        return {"_type": "Image"}
-    if kind in ("List", "Sequence"):
-        inner = _stored(feature.get("feature"))
-        if feature.get("length") == 1 and isinstance(inner, dict) and inner.get("_type") == "Value":
-            return inner
-        return {"feature": inner, "length": feature.get("length"), "_type": "List"}
-    if isinstance(kind, str) and kind.startswith("Array"):
-        return {"shape": list(feature.get("shape") or []), "dtype": feature.get("dtype"), "_type": kind}
-    return feature
-
-
-def _from_arrow(kind: Any) -> Any:
-    """What a column's arrow type says of its feature, in `_arrow_view`'s terms."""
-    import pyarrow as pa
-
-    if pa.types.is_struct(kind):
-        return "image" if kind.get_field_index("bytes") >= 0 else str(kind)
-    if pa.types.is_fixed_size_list(kind):
-        return (_from_arrow(kind.value_type), kind.list_size)
-    if pa.types.is_list(kind) or pa.types.is_large_list(kind):
-        return (_from_arrow(kind.value_type), None)
-    return str(kind)
-
-
-def _fits(stored: Any, expected: Any) -> bool:
-    """An arrow type's view fits a feature's: equal, where a list of unstated length fits any length."""
-    if isinstance(stored, tuple) and isinstance(expected, tuple):
-        return _fits(stored[0], expected[0]) and stored[1] in (None, expected[1])
-    return stored == expected
-
-
-_ARROW_NAMES = {"float32": "float", "float64": "double", "string": "string"}
-
-
-def _arrow_view(feature: dict) -> Any:
-    """A Hugging Face feature (`_hf_feature`) as `_from_arrow` reads its column's arrow type."""
-    kind = feature["_type"]
-    if kind == "Image":
-        return "image"
-    if kind == "Value":
-        return _ARROW_NAMES.get(feature["dtype"], feature["dtype"])
-    if kind == "List":
-        return (_arrow_view(feature["feature"]), feature["length"])
-    inner: Any = _ARROW_NAMES.get(feature["dtype"], feature["dtype"])
-    for _ in feature["shape"]:
-        inner = (inner, None)
-    return inner
-
-
 def _data(root: Path, info: dict, episodes: dict[str, np.ndarray], tasks: dict[int, str]) -> dict[str, np.ndarray]:
     """The index columns (and kitbench's, when there) of every data file, checked against the episode index."""
     if not episodes:
@@ -293,7 +223,7 @@ def _data(root: Path, info: dict, episodes: dict[str, np.ndarray], tasks: dict[i
     files = sorted(
         {(int(c), int(f)) for c, f in zip(episodes["data/chunk_index"], episodes["data/file_index"], strict=True)}
     )
-    expected = {k: f for k, e in info["features"].items() if (f := _hf_feature(e)) is not None}
+    expected = {k: f for k, e in info["features"].items() if (f := lerobot_schema.hf_feature(e)) is not None}
     wanted = [*INDEX_COLUMNS, *(c for c in (CARRIER, "next.success") if c in info["features"])]
     columns: dict[str, list[np.ndarray]] = {c: [] for c in wanted}
     for chunk, file in files:
@@ -301,13 +231,13 @@ def _data(root: Path, info: dict, episodes: dict[str, np.ndarray], tasks: dict[i
         schema, table = _parquet(path, wanted)
         try:
             stored = json.loads(schema.metadata[b"huggingface"])["info"]["features"]
-            stored = {k: _stored(v) for k, v in stored.items()}
+            stored = {k: lerobot_schema.stored_form(v) for k, v in stored.items()}
             want = expected
         except (KeyError, TypeError, ValueError):  # written by pandas (LeRobot's aggregation): its arrow types
-            stored = {f.name: _from_arrow(f.type) for f in schema}
-            want = {k: _arrow_view(v) for k, v in expected.items()}
+            stored = {f.name: lerobot_schema.from_arrow(f.type) for f in schema}
+            want = {k: lerobot_schema.arrow_view(v) for k, v in expected.items()}
         for name in sorted({*stored, *want}):
-            if not _fits(stored.get(name), want.get(name)):
+            if not lerobot_schema.fits(stored.get(name), want.get(name)):
                 raise Damage(path, f"stores feature {name!r} otherwise than {INFO_FILE} says")
         for c in wanted:
             columns[c].append(table[c])

@@ -129,7 +129,7 @@ def test_the_constants_integrity_copies_are_lerobots():
 def test_integrity_converts_each_feature_as_lerobot_does(dtype):
     from lerobot.datasets.feature_utils import get_hf_features_from_features
 
-    from kitbench import integrity
+    from kitbench import lerobot_schema
 
     features = {f"f{len(shape)}_{n}": {"dtype": dtype, "shape": shape, "names": None}
                 for n, shape in enumerate([(1,), (7,), (2, 3), (2, 3, 4), (1, 2, 3, 4), (1, 1, 2, 3, 4)])}  # fmt: skip
@@ -138,14 +138,14 @@ def test_integrity_converts_each_feature_as_lerobot_does(dtype):
     theirs = get_hf_features_from_features(features)
     moved = []
     for name, entry in features.items():
-        mine = integrity._hf_feature({**entry, "shape": list(entry["shape"])})  # as info.json reads
-        stored = integrity._stored(theirs.to_dict()[name]) if name in theirs else None
+        mine = lerobot_schema.hf_feature({**entry, "shape": list(entry["shape"])})  # as info.json reads
+        stored = lerobot_schema.stored_form(theirs.to_dict()[name]) if name in theirs else None
         if mine != stored:
-            moved.append(f"{entry['dtype']} {entry['shape']}: lerobot writes {stored}, integrity expects {mine}")
+            moved.append(f"{entry['dtype']} {entry['shape']}: lerobot writes {stored}, kitbench expects {mine}")
         elif mine is not None:  # a file pandas wrote (lerobot's aggregation): the arrow type an array is stored as
             kind = theirs.arrow_schema.field(name).type
-            arrow = integrity._from_arrow(getattr(kind, "storage_type", kind))
-            if not integrity._fits(arrow, integrity._arrow_view(mine)):
+            arrow = lerobot_schema.from_arrow(getattr(kind, "storage_type", kind))
+            if not lerobot_schema.fits(arrow, lerobot_schema.arrow_view(mine)):
                 moved.append(f"{entry['dtype']} {entry['shape']}: lerobot's arrow type {arrow}")
     _moved(moved)
 
