@@ -12,6 +12,7 @@ import pytest
 
 from kitbench.kits.board import BOARD_MARGIN, SLOT_FLOOR, layout_problems, placed_slot_polygons
 from kitbench.kits.clearance import SLOT_CLEARANCE
+from kitbench.kits.episode_file import load_episodes, validate_episodes
 from kitbench.kits.episodes import (
     FORMAT,
     MIN_SLOT_GAP,
@@ -21,8 +22,6 @@ from kitbench.kits.episodes import (
     EpisodeFileError,
     dumps_episodes,
     generate_episodes,
-    load_episodes,
-    validate_episodes,
 )
 from kitbench.kits.shapes import NUM_SHAPES, place, slot_outline
 

@@ -4,7 +4,8 @@ shapes    - the 20 kit shapes: outlines, exact convex pieces, symmetry, grasp wi
 clearance - pocket clearance per shape, from the largest yaw a shape may fit its pocket at
 fingers   - where the open fingertips come down around a shape, and how clear of obstacles they are
 board     - the kit board with its pockets: collision mesh, exact convex pieces, visual mesh
-episodes  - the versioned episode file format, its generator and validating loader
+episodes  - the versioned episode file format and its generator
+episode_file - reading an episode file: parsed, validated, built
 convex    - polygon -> convex pieces (constrained Delaunay + Hertel-Mehlhorn), prism extrusion, meshes
 
 The public names below are re-exported lazily (PEP 562) so that
@@ -45,6 +46,10 @@ if TYPE_CHECKING:
         is_convex_polygon as is_convex_polygon,
         mesh_volume as mesh_volume,
     )
+    from kitbench.kits.episode_file import (
+        load_episodes as load_episodes,
+        validate_episodes as validate_episodes,
+    )
     from kitbench.kits.episodes import (
         FORMAT as FORMAT,
         PALETTE as PALETTE,
@@ -55,8 +60,6 @@ if TYPE_CHECKING:
         EpisodeSet as EpisodeSet,
         Slot as Slot,
         generate_episodes as generate_episodes,
-        load_episodes as load_episodes,
-        validate_episodes as validate_episodes,
         write_default_episodes as write_default_episodes,
     )
     from kitbench.kits.shapes import (
@@ -107,12 +110,11 @@ _EXPORTS: dict[str, str] = {
             "EpisodeSet",
             "Slot",
             "generate_episodes",
-            "load_episodes",
-            "validate_episodes",
             "write_default_episodes",
         ],
         "episodes",
     ),
+    **dict.fromkeys(["load_episodes", "validate_episodes"], "episode_file"),
     **dict.fromkeys(
         [
             "DEFAULT_PAD_WIDTH",
