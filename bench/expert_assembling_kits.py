@@ -29,7 +29,8 @@ import numpy as np
 import kitbench  # noqa: F401  (registers the tasks)
 from kitbench.geometry import planar_yaw, quat_to_matrix
 from kitbench.kits import SHAPE_NAMES, shape_geometry
-from kitbench.planning.assembling_kits import AssemblingKitsPlanner, grip_period
+from kitbench.planning.assembling_kits import AssemblingKitsPlanner
+from kitbench.planning.kit_grasps import grip_period
 from kitbench.policies.joint_targets import joint_target_to_action
 
 TASK = "kitbench/AssemblingKits-v1"

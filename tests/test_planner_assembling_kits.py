@@ -10,7 +10,8 @@ import pytest
 
 import kitbench  # noqa: F401
 from kitbench.geometry import planar_yaw, quat_to_matrix
-from kitbench.planning.assembling_kits import AssemblingKitsPlanner, across_narrowest, signed_yaw_options
+from kitbench.planning.assembling_kits import AssemblingKitsPlanner
+from kitbench.planning.kit_grasps import across_narrowest, signed_yaw_options
 from kitbench.tasks.assembling_kits import yaw_error
 
 # seed: shape — a disc lying on the table next to the board, a hexagon (2 pi / 6), a rectangle (pi), a kite
@@ -211,7 +212,7 @@ def test_grasp_misses_refuses_what_it_cannot_replay(tmp_path, capsys):
 
 
 def test_a_flat_jaw_meets_a_face_across_a_rectangle_and_a_corner_of_a_triangle():
-    from kitbench.planning.assembling_kits import CLOSING_SAMPLES, jaw_contacts
+    from kitbench.planning.kit_grasps import CLOSING_SAMPLES, jaw_contacts
 
     along = jaw_contacts(6)[0]  # the 50 x 24 mm rectangle closed along its length: a 24 mm face at either end
     assert along.behind_at == pytest.approx(-0.025) and along.ahead_at == pytest.approx(0.025)
