@@ -19,7 +19,7 @@ from sapien import physx
 
 import kitbench  # noqa: F401
 from kitbench.envs.grasp import GraspHistory
-from kitbench.envs.tabletop import MAX_BODY_SPEED
+from kitbench.envs.physics_watch import MAX_BODY_SPEED
 from kitbench.evaluation.episode import evaluate_episode
 from kitbench.evaluation.outcomes import PHYSICS_ERROR, failure_category
 from kitbench.evaluation.report import build_report

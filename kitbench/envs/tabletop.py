@@ -31,6 +31,7 @@ from kitbench.control.kinematics import ArmKinematics, arm_joint_limits
 from kitbench.envs.grasp import GraspHistory
 from kitbench.envs.modes import IMAGE_OBS_MODES, OBS_MODES, POINTCLOUD, REWARD_MODES, camera_textures
 from kitbench.envs.observations import flatten_state, pose7, space_for
+from kitbench.envs.physics_watch import PhysicsWatch
 from kitbench.envs.pointcloud import fuse_cameras
 from kitbench.envs.segmentation import SEGMENTATION_FIXED, segmentation_lut
 from kitbench.errors import KitbenchError, check_choice, check_vector
@@ -41,14 +42,6 @@ from kitbench.sim.cameras import Camera, CameraSpec, check_sensor_configs, confi
 from kitbench.sim.scene import SimConfig, add_table_and_ground, create_scene
 
 POSE_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
-# Faster than this (m/s), a task's object has been thrown by a solver failure rather than by the robot. The most
-# violent play there is, uniform random absolute joint targets (pd_joint_pos), throws the peg at up to 10.1 m/s
-# (15,000 steps; 1 step above 10 m/s) with a hand moving at up to 16 m/s; random play in the other control modes
-# and the experts stay below 7 m/s, and an object falling off the table reaches 4.2 m/s at the floor. 25 m/s
-# leaves 2.5x that margin; a diverged body goes to NaN or keeps accelerating. The robot's own links are not held
-# to a speed: under random absolute targets its fingers reach 66 m/s (the gripper drive slamming them against
-# their limits) without anything going wrong; they are checked for NaN and inf only.
-MAX_BODY_SPEED = 25.0
 # Points farther than this along their camera's viewing axis leave the point cloud (w = 0). Measured at reset
 # (seed 0): the table's pixels lie within 1.27 m of every camera of both tasks (LiftPegUpright's base camera:
 # 0.43-1.27 m; the robot and the objects within 0.86 m) and the floor's from 1.53 m on (out to 7.6 m): 1.5 m keeps
@@ -97,7 +90,7 @@ class TabletopEnv(gym.Env, abc.ABC):
     # of them by robot uid, for a task whose robots move too differently to share one.
     expert: ClassVar[str | type | dict[str, str | type] | None] = None
     # The bodies `step` checks for a diverged simulation, collected at the first step in each scene.
-    _watched: _WatchedBodies | None = None
+    _watched: PhysicsWatch | None = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -393,27 +386,10 @@ class TabletopEnv(gym.Env, abc.ABC):
         self._watched = None
 
     def _physics_fault(self) -> str | None:
-        """What is wrong with the simulation after a step (None when nothing is): a NaN or infinite pose or
-        velocity of a dynamic body or of the robot, or a dynamic body faster than `MAX_BODY_SPEED`.
-
-        One speed test per actor and one finiteness test over the robot's joints and the actors' poses and
-        velocities: 11 us a step with AssemblingKits' one loose shape (20,000 calls), against ~0.8 ms for the step.
-        """
-        watched = self._watched
-        if watched is None:
-            watched = self._watched = _WatchedBodies(self)
-        art = self.robot.articulation
-        values = [art.get_qpos(), art.get_qvel()]
-        for body in watched.actors:
-            velocity = body.linear_velocity
-            # NaN and inf fail the comparison too, so this also tests the linear velocity for being finite
-            if not velocity.dot(velocity) < MAX_BODY_SPEED**2:
-                return watched.describe()
-            pose = body.entity_pose
-            values += (pose.p, pose.q, body.angular_velocity)
-        if np.isfinite(np.concatenate(values)).all():
-            return None
-        return watched.describe()
+        """What is wrong with the simulation after a step (None when nothing is): `PhysicsWatch.fault`."""
+        if self._watched is None:
+            self._watched = PhysicsWatch(self.scene, self.robot)
+        return self._watched.fault()
 
     def _arm_limits(self) -> np.ndarray:
         # a continuous joint (a wrist roll) gets +-2 pi: absolute targets beyond a turn mean nothing more
@@ -635,36 +611,3 @@ class TabletopEnv(gym.Env, abc.ABC):
     @property
     def control_timestep(self) -> float:
         return 1.0 / self.sim_config.control_freq
-
-
-class _WatchedBodies:
-    """The bodies whose state tells whether PhysX diverged, collected once per scene: every dynamic actor (the
-    task's objects) and the robot. A fixed-base articulation's link poses and velocities are functions of its joint
-    positions and velocities, so finite joints mean finite links."""
-
-    def __init__(self, env: TabletopEnv):
-        self.robot = env.robot
-        self.actors = [b for b in env.scene.physx_system.get_rigid_dynamic_components() if not b.kinematic]
-
-    def describe(self) -> str:
-        """One line naming every body that went wrong and how (the slow path, taken once per diverged episode)."""
-        problems = []
-        for body in self.actors:
-            pose = body.entity_pose
-            quantities = (
-                ("position", pose.p),
-                ("orientation", pose.q),
-                ("linear velocity", body.linear_velocity),
-                ("angular velocity", body.angular_velocity),
-            )
-            bad = [name for name, value in quantities if not np.isfinite(value).all()]
-            speed = float(np.linalg.norm(body.linear_velocity))
-            if bad:
-                problems.append(f"{body.entity.name} has a non-finite {', '.join(bad)}")
-            elif speed >= MAX_BODY_SPEED:
-                problems.append(f"{body.entity.name} moves at {speed:.3g} m/s (limit {MAX_BODY_SPEED:g})")
-        art = self.robot.articulation
-        for name, value in (("joint positions", art.get_qpos()), ("joint velocities", art.get_qvel())):
-            if not np.isfinite(value).all():
-                problems.append(f"robot {self.robot.spec.uid} has non-finite {name}")
-        return "; ".join(problems) or "a body's state is not finite"
