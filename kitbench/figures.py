@@ -71,8 +71,14 @@ def machine(entry: Published) -> str:
 
 
 def heldout(entry: Published) -> str:
-    seeds = ", ".join(map(str, entry.heldout_seeds))
-    return f"{seeds} (not yet trained)" if entry.figure_seeds == "selection" else f"{seeds} (the figure)"
+    if entry.figure_seeds == "heldout":
+        return ", ".join(map(str, entry.heldout_seeds)) + " (the figure)"
+    trained = zip(entry.heldout_seeds, entry.heldout_success, entry.heldout_episodes, strict=False)
+    cells = [f"{seed}: {percent(s / n)} ({s}/{n})" for seed, s, n in trained]
+    waiting = entry.heldout_seeds[len(cells) :]
+    if waiting:
+        cells.append(", ".join(map(str, waiting)) + " (not yet trained)")
+    return "; ".join(cells)
 
 
 def row(cells: list[str]) -> str:

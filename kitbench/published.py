@@ -41,6 +41,8 @@ OPTIONAL = (
     "eval_batch_size",
     "reference_seconds",
     "threads",
+    "heldout_success",
+    "heldout_episodes",
 )
 
 
@@ -66,6 +68,9 @@ class Published:
     threads: int | None = None  # torch's threads in the published trainings (default: the cores workers leave)
     seed_success: tuple[int, ...] = ()  # each training seed's successes over every suite, and its episodes
     seed_episodes: tuple[int, ...] = ()
+    # the held-out seeds trained so far, in `heldout_seeds`' order: each one's successes over every suite, its episodes
+    heldout_success: tuple[int, ...] = ()
+    heldout_episodes: tuple[int, ...] = ()
     extra: dict = field(default_factory=dict)  # the optional keys as written, for readers that predate their fields
 
     def __post_init__(self) -> None:
@@ -158,6 +163,8 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         threads=None if "threads" not in entry else int(entry["threads"]),
         seed_success=tuple(int(s) for s in entry.get("seed_success", ())),
         seed_episodes=tuple(int(n) for n in entry.get("seed_episodes", ())),
+        heldout_success=tuple(int(s) for s in entry.get("heldout_success", ())),
+        heldout_episodes=tuple(int(n) for n in entry.get("heldout_episodes", ())),
         extra={k: entry[k] for k in (*OPTIONAL, "device") if k in entry},
     )
     if not 0 <= row.success <= row.episodes:
@@ -167,6 +174,14 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
             f"{where}: seed_success and seed_episodes give {len(row.seed_success)} and {len(row.seed_episodes)} "
             f"figures for the {len(row.seeds)} {row.figure_seeds} seeds"
         )
+    trained = len(row.heldout_success)
+    if trained != len(row.heldout_episodes) or trained > len(row.heldout_seeds):
+        raise KitbenchError(
+            f"{where}: heldout_success and heldout_episodes give {trained} and {len(row.heldout_episodes)} figures; "
+            f"give one each for the first held-out seeds trained, of {len(row.heldout_seeds)}"
+        )
+    if any(not 0 <= s <= n for s, n in zip(row.heldout_success, row.heldout_episodes, strict=True)):
+        raise KitbenchError(f"{where}: heldout_success {list(row.heldout_success)} is not within 0..heldout_episodes")
     return row
 
 

@@ -63,6 +63,7 @@ def test_the_heldout_seeds_are_the_documented_draw_and_disjoint_from_the_selecti
     drawn = {line.split(": ")[0]: json.loads(line.split(": ")[1]) for line in output.splitlines()}
     published = load_published()
     assert list(drawn) == list(published)
+    assert figures.heldout(published["diffusion_lift_peg_upright_state"]).startswith("14311: 89.5% (179/200); 25675")
     for name, entry in published.items():
         assert list(entry.heldout_seeds) == drawn[name], name
         assert len(entry.heldout_seeds) >= 3 and not set(entry.heldout_seeds) & set(entry.selection_seeds)
@@ -99,6 +100,18 @@ def _row(**changes: str) -> str:
         ({"seed_success": "[183, 368]"}, "seed_success and seed_episodes give 2 and 3 figures for the 3 selection"),
         ({"selection_seeds": "[1000, 1000, 3000]"}, "selection_seeds [1000, 1000, 3000] repeats a seed"),
         ({"interval": "[0.89, 0.94]"}, "unknown key 'interval'; valid keys: recipe, demos"),
+        (
+            {"heldout_success": "[180, 170]", "heldout_episodes": "[200]"},
+            "heldout_success and heldout_episodes give 2 and 1 figures; give one each for the first held-out seeds",
+        ),
+        (
+            {"heldout_success": "[1, 2, 3, 4]", "heldout_episodes": "[200, 200, 200, 200]"},
+            "give one each for the first held-out seeds trained, of 3",
+        ),
+        (
+            {"heldout_success": "[201]", "heldout_episodes": "[200]"},
+            "heldout_success [201] is not within 0..heldout_episodes",
+        ),
     ],
 )
 def test_a_bad_row_is_refused_in_one_line_naming_it(tmp_path, changes, message):
