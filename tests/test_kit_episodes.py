@@ -49,7 +49,7 @@ def test_generator_is_deterministic():
 
 
 def test_committed_file_is_the_generator_output(default_data, packaged_text):
-    assert json.loads(packaged_text) == default_data, "regenerate with: python -m kitbench.kits.episodes"
+    assert json.loads(packaged_text) == default_data, "regenerate with: python -m kitbench.kits.episode_file"
     assert packaged_text == dumps_episodes(default_data)
     assert len(packaged_text) < 200_000
 

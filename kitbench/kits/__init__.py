@@ -5,11 +5,11 @@ clearance - pocket clearance per shape, from the largest yaw a shape may fit its
 fingers   - where the open fingertips come down around a shape, and how clear of obstacles they are
 board     - the kit board with its pockets: collision mesh, exact convex pieces, visual mesh
 episodes  - the versioned episode file format and its generator
-episode_file - reading an episode file: parsed, validated, built
+episode_file - reading an episode file: parsed, validated, built; the packaged file written anew
 convex    - polygon -> convex pieces (constrained Delaunay + Hertel-Mehlhorn), prism extrusion, meshes
 
 The public names below are re-exported lazily (PEP 562) so that
-``python -m kitbench.kits.episodes`` does not import its own module twice and
+``python -m kitbench.kits.episode_file`` does not import its own module twice and
 importing the package stays cheap until geometry is actually needed.
 """
 
@@ -49,6 +49,7 @@ if TYPE_CHECKING:
     from kitbench.kits.episode_file import (
         load_episodes as load_episodes,
         validate_episodes as validate_episodes,
+        write_default_episodes as write_default_episodes,
     )
     from kitbench.kits.episodes import (
         FORMAT as FORMAT,
@@ -60,7 +61,6 @@ if TYPE_CHECKING:
         EpisodeSet as EpisodeSet,
         Slot as Slot,
         generate_episodes as generate_episodes,
-        write_default_episodes as write_default_episodes,
     )
     from kitbench.kits.shapes import (
         DEFAULT_PAD_WIDTH as DEFAULT_PAD_WIDTH,
@@ -110,11 +110,10 @@ _EXPORTS: dict[str, str] = {
             "EpisodeSet",
             "Slot",
             "generate_episodes",
-            "write_default_episodes",
         ],
         "episodes",
     ),
-    **dict.fromkeys(["load_episodes", "validate_episodes"], "episode_file"),
+    **dict.fromkeys(["load_episodes", "validate_episodes", "write_default_episodes"], "episode_file"),
     **dict.fromkeys(
         [
             "DEFAULT_PAD_WIDTH",

@@ -1,11 +1,15 @@
 """Reading an AssemblingKits episode file: parsed, checked field by field against the schema
 (`kitbench.kits.episodes`, version 2 or 1) and built into an `EpisodeSet`; a bad file is one line naming the field
-and what is wrong with it (`EpisodeFileError`)."""
+and what is wrong with it (`EpisodeFileError`); and the packaged file written anew from the generator:
+
+    python -m kitbench.kits.episode_file          # regenerate the packaged file
+"""
 
 from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
@@ -22,6 +26,9 @@ from kitbench.kits.episodes import (
     EpisodeFileError,
     EpisodeSet,
     Slot,
+    default_episodes_path,
+    dumps_episodes,
+    generate_episodes,
 )
 from kitbench.kits.shapes import NUM_SHAPES
 
@@ -230,3 +237,25 @@ def load_episodes(path: str | Path | None = None) -> EpisodeSet:
     except json.JSONDecodeError as e:
         raise EpisodeFileError(f"{source}: line {e.lineno} col {e.colno}: malformed JSON: {e.msg}") from e
     return validate_episodes(data, source=source)
+
+
+def write_default_episodes(path: str | Path | None = None) -> Path:
+    """Regenerate the packaged episode file with the default arguments."""
+    path = Path(path) if path is not None else default_episodes_path()
+    data = generate_episodes()
+    validate_episodes(data, source=str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dumps_episodes(data), encoding="utf-8")
+    return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    path = write_default_episodes(argv[0] if argv else None)
+    eps = load_episodes(path)
+    print(f"wrote {len(eps)} episodes to {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -8,14 +8,13 @@ are data, not code, so datasets recorded on one kitbench version can be
 replayed on another; the format is documented in
 docs/assembling-kits-episodes.md and versioned.
 
-    python -m kitbench.kits.episodes          # regenerate the packaged file
+    python -m kitbench.kits.episode_file      # regenerate the packaged file
 """
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -337,30 +336,4 @@ def default_episodes_path() -> Path:
     return Path(__file__).resolve().parent / "data" / DEFAULT_FILE
 
 
-def write_default_episodes(path: str | Path | None = None) -> Path:
-    """Regenerate the packaged episode file with the default arguments."""
-    from kitbench.kits.episode_file import validate_episodes  # it builds this module's classes
-
-    path = Path(path) if path is not None else default_episodes_path()
-    data = generate_episodes()
-    validate_episodes(data, source=str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(dumps_episodes(data), encoding="utf-8")
-    return path
-
-
 # --------------------------------------------------------------------------- loader / validator
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    from kitbench.kits.episode_file import load_episodes  # it builds this module's classes
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    path = write_default_episodes(argv[0] if argv else None)
-    eps = load_episodes(path)
-    print(f"wrote {len(eps)} episodes to {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
