@@ -92,14 +92,15 @@ def boundaries(discordant, fractions, alpha: float, theta: float = 0.5, rho: flo
         allowed = float(spent(fractions[j], alpha / 2, rho)) + SLACK
         tail = np.cumsum(dist[:, ::-1], axis=1)[:, ::-1]  # P(S >= u, no earlier crossing); 0 past k: always found
         up = np.minimum(np.argmax(tail <= (allowed - spent_hi)[:, None], axis=1), k + 1)
-        head = np.cumsum(dist, axis=1)  # P(S <= l, no earlier crossing)
-        if theta == 0.5:  # the fair walk is symmetric, so are its boundaries (bit for bit)
+        if theta == 0.5:  # the fair walk is symmetric, so are its boundaries (bit for bit) and what they spend
             up = np.maximum(up, k // 2 + 1)
             low = k - up
+            spent_hi += np.take_along_axis(tail, up[:, None], axis=1)[:, 0]
         else:
+            head = np.cumsum(dist, axis=1)  # P(S <= l, no earlier crossing)
             low = np.minimum((head <= (allowed - spent_lo)[:, None]).sum(axis=1) - 1, up - 1)
-        spent_hi += np.take_along_axis(tail, up[:, None], axis=1)[:, 0]
-        spent_lo += np.where(low >= 0, np.take_along_axis(head, np.maximum(low, 0)[:, None], axis=1)[:, 0], 0.0)
+            spent_hi += np.take_along_axis(tail, up[:, None], axis=1)[:, 0]
+            spent_lo += np.where(low >= 0, np.take_along_axis(head, np.maximum(low, 0)[:, None], axis=1)[:, 0], 0.0)
         dist = np.where((column >= up[:, None]) | (column <= low[:, None]), 0.0, dist)
         lower[:, j], upper[:, j] = low, up
     return lower, upper
@@ -166,7 +167,8 @@ class Assessment:
     """Where the comparison stands after `pairs` seeds scored by both: `a_only` seeds only A succeeded on,
     `b_only` only B. `difference` is rate(A) - rate(B), `interval` its 1 - alpha interval, valid at every look at
     once; `theta_interval` the chance a discordant seed favours A; `needs`: the discordant seeds one side needed
-    at this look to decide (the count past which it cannot yet, k + 1); `spent` the error spent so far."""
+    at this look to decide (the count past which it cannot yet, k + 1); `spent` the most error the decision may
+    have spent so far (its spending function at this look)."""
 
     pairs: int
     a_only: int
