@@ -70,6 +70,19 @@ def machine(entry: Published) -> str:
     return f"{entry.device}; reference {entry.reference_seconds:.1f} s on {threads} thread{'s' if threads > 1 else ''}"
 
 
+def figure_from(entry: Published) -> str:
+    """Which seeds the figure pools; from held-out seeds, the selection seeds' figures beside it."""
+    if entry.figure_seeds == "selection" or entry.selection_rate is None:
+        return f"{entry.figure_seeds} seeds"
+    trained = zip(entry.selection_seeds, entry.selection_success, entry.selection_episodes, strict=True)
+    cells = ", ".join(f"{seed}: {percent(s / n)}" for seed, s, n in trained)
+    below = "; above the held-out figure's interval" if entry.selection_rate > entry.interval[1] else ""
+    return (
+        f"held-out seeds; chosen at selection seeds {cells} on `{entry.selection_suite}` "
+        f"(pooled {percent(entry.selection_rate)}{below})"
+    )
+
+
 def heldout(entry: Published) -> str:
     if entry.figure_seeds == "heldout":
         return ", ".join(map(str, entry.heldout_seeds)) + " (the figure)"
@@ -113,7 +126,7 @@ def results_table(published: Mapping[str, Published]) -> str:
                     f"{entry.success}/{entry.episodes} = {percent(entry.rate)}",
                     interval(entry),
                     per_seed(entry),
-                    f"{entry.figure_seeds} seeds",
+                    figure_from(entry),
                     heldout(entry),
                     f"{entry.train_minutes:.1f} min",
                     machine(entry),

@@ -43,6 +43,9 @@ OPTIONAL = (
     "threads",
     "heldout_success",
     "heldout_episodes",
+    "selection_suite",
+    "selection_success",
+    "selection_episodes",
 )
 
 
@@ -71,6 +74,10 @@ class Published:
     # the held-out seeds trained so far, in `heldout_seeds`' order: each one's successes over every suite, its episodes
     heldout_success: tuple[int, ...] = ()
     heldout_episodes: tuple[int, ...] = ()
+    # with a figure from the held-out seeds: each selection seed's figure on the validation suite it was chosen on
+    selection_suite: str | None = None
+    selection_success: tuple[int, ...] = ()
+    selection_episodes: tuple[int, ...] = ()
     extra: dict = field(default_factory=dict)  # the optional keys as written, for readers that predate their fields
 
     def __post_init__(self) -> None:
@@ -97,6 +104,11 @@ class Published:
     @property
     def seed_rates(self) -> tuple[float, ...]:
         return tuple(s / n for s, n in zip(self.seed_success, self.seed_episodes, strict=True))
+
+    @property
+    def selection_rate(self) -> float | None:
+        """The selection seeds' pooled figure on the validation suite, where the row keeps it."""
+        return sum(self.selection_success) / sum(self.selection_episodes) if self.selection_success else None
 
     def train_minutes_here(self, here: float, steps: int | None = None) -> float | None:
         """The published training minutes on a machine whose reference workload took `here` s, for `steps` updates
@@ -165,6 +177,9 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         seed_episodes=tuple(int(n) for n in entry.get("seed_episodes", ())),
         heldout_success=tuple(int(s) for s in entry.get("heldout_success", ())),
         heldout_episodes=tuple(int(n) for n in entry.get("heldout_episodes", ())),
+        selection_suite=entry.get("selection_suite"),
+        selection_success=tuple(int(s) for s in entry.get("selection_success", ())),
+        selection_episodes=tuple(int(n) for n in entry.get("selection_episodes", ())),
         extra={k: entry[k] for k in (*OPTIONAL, "device") if k in entry},
     )
     if not 0 <= row.success <= row.episodes:
@@ -182,7 +197,40 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         )
     if any(not 0 <= s <= n for s, n in zip(row.heldout_success, row.heldout_episodes, strict=True)):
         raise KitbenchError(f"{where}: heldout_success {list(row.heldout_success)} is not within 0..heldout_episodes")
+    _check_selection(row, where)
     return row
+
+
+def _check_selection(row: Published, where: str) -> None:
+    """A figure from the held-out seeds keeps its selection seeds' figures beside it (`selection_*`), on a validation
+    suite that is none of the figure's; a figure from the selection seeds keeps them as its own."""
+    given = [k for k in ("selection_suite", "selection_success", "selection_episodes") if k in row.extra]
+    if row.figure_seeds == "selection":
+        if given:
+            raise KitbenchError(f"{where}: {given[0]} is for a figure from held-out seeds; here seed_success is it")
+        return
+    if row.heldout_success or row.heldout_episodes:
+        raise KitbenchError(f"{where}: heldout_success is seed_success when figure_seeds is heldout; leave it out")
+    if len(given) not in (0, 3):
+        raise KitbenchError(f"{where}: give selection_suite, selection_success and selection_episodes together")
+    if not given:
+        return
+    if len(row.selection_success) != len(row.selection_seeds) or len(row.selection_episodes) != len(
+        row.selection_seeds
+    ):
+        raise KitbenchError(
+            f"{where}: selection_success and selection_episodes give {len(row.selection_success)} and "
+            f"{len(row.selection_episodes)} figures for the {len(row.selection_seeds)} selection seeds"
+        )
+    if any(not 0 <= s <= n for s, n in zip(row.selection_success, row.selection_episodes, strict=True)):
+        raise KitbenchError(
+            f"{where}: selection_success {list(row.selection_success)} is not within 0..selection_episodes"
+        )
+    if row.selection_suite in row.suites:
+        raise KitbenchError(
+            f"{where}: selection_suite {row.selection_suite!r} is one of the figure's suites; the seeds that chose "
+            "are scored on a validation suite"
+        )
 
 
 def load_published(path: Path = PUBLISHED) -> dict[str, Published]:

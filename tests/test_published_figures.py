@@ -73,12 +73,27 @@ def test_the_heldout_seeds_are_the_documented_draw_and_disjoint_from_the_selecti
         assert (sum(entry.seed_success), sum(entry.seed_episodes)) == (entry.success, entry.episodes), name
 
 
-def _row(**changes: str) -> str:
+# a figure from held-out seeds, with its selection seeds' figures beside it
+HELDOUT_FIGURE = {
+    "figure_seeds": '"heldout"',
+    "heldout_seeds": "[50000, 60000, 70000]",
+    "heldout_success": None,
+    "heldout_episodes": None,
+    "selection_suite": '"lift_peg_upright_val"',
+    "selection_success": "[99, 98, 97]",
+    "selection_episodes": "[100, 100, 100]",
+}
+
+
+def _row(**changes: str | None) -> str:
     """The CONFIG row of published.toml with `changes` (key = its TOML value) written over it."""
     text = PUBLISHED.read_text()
     start = text.index(f"[{CONFIG}]")
     entry = text[start : text.index("\n[", start)]
     for key, value in changes.items():
+        if value is None:  # left out
+            entry = re.sub(rf"(?m)^{key} = .*\n?", "", entry)
+            continue
         entry, replaced = re.subn(rf"(?m)^{key} = .*$", f"{key} = {value}", entry)
         if not replaced:
             entry += f"\n{key} = {value}"
@@ -112,6 +127,20 @@ def _row(**changes: str) -> str:
             {"heldout_success": "[201]", "heldout_episodes": "[200]"},
             "heldout_success [201] is not within 0..heldout_episodes",
         ),
+        ({"selection_success": "[99, 98, 97]"}, "selection_success is for a figure from held-out seeds"),
+        (
+            {**HELDOUT_FIGURE, "heldout_success": "[199]", "heldout_episodes": "[200]"},
+            "heldout_success is seed_success when figure_seeds is heldout; leave it out",
+        ),
+        (
+            {**HELDOUT_FIGURE, "selection_episodes": "[100, 100]"},
+            "selection_success and selection_episodes give 3 and 2 figures for the 3 selection seeds",
+        ),
+        ({**HELDOUT_FIGURE, "selection_success": "[99, 101, 97]"}, "selection_success [99, 101, 97] is not within"),
+        (
+            {**HELDOUT_FIGURE, "selection_suite": '"lift_peg_upright"'},
+            "selection_suite 'lift_peg_upright' is one of the figure's suites",
+        ),
     ],
 )
 def test_a_bad_row_is_refused_in_one_line_naming_it(tmp_path, changes, message):
@@ -121,6 +150,19 @@ def test_a_bad_row_is_refused_in_one_line_naming_it(tmp_path, changes, message):
         load_published(path)
     assert str(refused.value).startswith(f"published figures {path}: [{CONFIG}]") and "\n" not in str(refused.value)
     assert message in str(refused.value)
+
+
+def test_a_heldout_figure_shows_the_selection_figures_beside_it(tmp_path):
+    path = tmp_path / "published.toml"
+    path.write_text(_row(**HELDOUT_FIGURE))
+    entry = load_published(path)[CONFIG]
+    assert entry.seeds == (50000, 60000, 70000) and entry.selection_rate == pytest.approx(0.98)
+    shown = figures.figure_from(entry)
+    assert "selection seeds 1000: 99.0%, 2000: 98.0%, 3000: 97.0% on `lift_peg_upright_val` (pooled 98.0%" in shown
+    # the selection figure above the held-out figure's interval is said so
+    assert entry.interval[1] < 0.98 and "above the held-out figure's interval" in shown
+    path.write_text(_row(**{**HELDOUT_FIGURE, "selection_success": "[50, 50, 50]"}))
+    assert "above" not in figures.figure_from(load_published(path)[CONFIG])
 
 
 def test_the_learnability_bench_reads_the_same_rows_as_reproduce():
