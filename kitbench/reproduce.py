@@ -15,6 +15,9 @@ figure's own interval, which is narrower than any single run's. Before the train
 training minutes are scaled to this machine by a fixed reference workload (`kitbench.training.reference`) timed
 here, and printed as what to expect; the workload is timed again as the training ends.
 
+Each training seed keeps its checkpoint, its reports and its verdict (`reproduce.json`) in `<out>/seed<N>/`,
+beside the recording they share (`<out>/data`).
+
 Each step is its own function: `record_data`, `train_policy`, `score`, `verdict`; `reproduce` runs them in order.
 """
 
@@ -105,6 +108,14 @@ class Run:
     def policy_dir(self) -> Path:
         return self.training.policy_dir
 
+    def report_dir(self, suite: str) -> Path:
+        """Where this seed's evaluation on `suite` goes: beside its checkpoint, so another seed's never replaces it."""
+        return self.policy_dir / f"eval_{suite}"
+
+    @property
+    def result(self) -> Path:
+        return self.policy_dir / "reproduce.json"
+
 
 def plan(config: ReproduceConfig) -> Run:
     """The checked request: the recording and the training it asks for, refused before anything runs when it would
@@ -189,7 +200,7 @@ def score(planned: Run, trained: dict, say=print) -> tuple[int, int]:
     for name in entry.suites:
         suite = ROOT / "eval" / "suites" / f"{name}.toml"
         first = load_suite(suite).seeds[: config.eval_episodes]
-        out = config.folder / f"eval_{name}"
+        out = planned.report_dir(name)
         say(f"scoring on {name} ({len(first)} episodes); its log: {out}.log")
         command = run.eval_command(
             trained["dir"],
@@ -256,7 +267,7 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
         "reference_seconds_after_training": after,
         "train_command": trained["command"],
     }
-    (config.folder / "reproduce.json").write_text(json.dumps(result, indent=1) + "\n")
+    planned.result.write_text(json.dumps(result, indent=1) + "\n")
     return 0 if inside else 3
 
 

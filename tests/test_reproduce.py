@@ -63,12 +63,12 @@ def test_reproduce_runs_end_to_end_and_compares_with_where_a_new_seed_lands(
     assert cli.main([*argv, "--published", str(_published(tmp_path, [2, 2, 2], [4, 4, 4]))]) == 0
     captured = capsys.readouterr()
     printed = captured.out
-    result = json.loads((out / "reproduce.json").read_text())
+    result = json.loads((out / "seed1000" / "reproduce.json").read_text())
     assert result["episodes"] == 4 and result["inside"] is True  # two seeds of each of the two suites
     assert f"{CONFIG}: {result['success']}/4 = " in printed and "consistent with the published figure" in printed
     assert "a new training seed scored on 4 episodes is expected at 0.0%–100.0%" in printed
     assert f"train {CONFIG}: 2/2" in captured.err  # the training's progress, as lerobot-train made it
-    assert (out / "eval_lift_peg_upright_heldout" / "report.json").is_file()
+    assert (out / "seed1000" / "eval_lift_peg_upright_heldout" / "report.json").is_file()
     assert result["train_command"][-1] == "--steps=2" and "--seed=1000" in result["train_command"]
     assert result["reference_seconds"] > 0 and result["reference_seconds_after_training"] > 0
 
@@ -266,3 +266,15 @@ def test_save_every_keeps_checkpoints_along_the_training_and_is_part_of_its_requ
         "--save_freq=5"
         not in plan(ReproduceConfig(CONFIG, out=tmp_path / "run", steps=20)).training.request()["command"]
     )
+
+
+def test_each_training_seed_keeps_its_reports_and_verdict_beside_its_checkpoint(tmp_path):
+    """Seeds reproduced into one folder share the recording; one seed's scoring never replaces another's."""
+    from kitbench.reproduce import ReproduceConfig, plan
+
+    first = plan(ReproduceConfig(CONFIG, out=tmp_path / "run", seed=21418))
+    second = plan(ReproduceConfig(CONFIG, out=tmp_path / "run", seed=76247))
+    assert first.training.data == second.training.data == tmp_path / "run" / "data"
+    for planned in (first, second):
+        assert planned.report_dir("lift_peg_upright").parent == planned.result.parent == planned.policy_dir
+    assert first.report_dir("lift_peg_upright") != second.report_dir("lift_peg_upright")
