@@ -22,8 +22,12 @@ class Progress(Protocol):
     def close(self) -> None: ...
 
 
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.0f} min"
+
+
 class PlainProgress:
-    """`desc: n/total (pct) [elapsed, rate] key=value ...` lines, at most one per `interval` seconds."""
+    """`desc: n/total (pct) [elapsed, rate, time left] key=value ...` lines, at most one per `interval` seconds."""
 
     def __init__(
         self, total: int, desc: str, unit: str = "ep", stream: TextIO | None = None, interval: float = PLAIN_INTERVAL
@@ -39,6 +43,8 @@ class PlainProgress:
         elapsed = time.monotonic() - self.start
         pct = f" ({self.n / self.total:.0%})" if self.total else ""
         rate = f", {self.n / elapsed:.2f} {self.unit}/s" if elapsed > 0 else ""
+        if elapsed > 0 and 0 < self.n < self.total:
+            rate += f", {_duration((self.total - self.n) * elapsed / self.n)} left"  # at the rate so far
         extra = "".join(f" {k}={v}" for k, v in self.postfix.items())
         return f"{self.desc}: {self.n}/{self.total}{pct} [{elapsed:.0f} s{rate}]{extra}"
 

@@ -28,6 +28,20 @@ def test_off_a_terminal_progress_is_plain_lines():
     assert len(lines) == 6 and lines[-1].startswith("record T: 5/5 (100%)") and lines[-1].endswith("success=100%")
 
 
+def test_a_line_says_the_time_left_at_the_rate_so_far():
+    stream = io.StringIO()
+    bar = PlainProgress(2500, "train T", unit="step", stream=stream, interval=0.0)
+    bar.start -= 600.0  # 500 steps in ten minutes: 2,000 left take forty
+    bar.update(500)
+    bar.start -= 3000.0
+    bar.update(1999)  # a step left at 0.69 step/s
+    bar.update(1)
+    first, second, last = stream.getvalue().splitlines()
+    assert first.startswith("train T: 500/2500 (20%) [600 s, 0.83 step/s, 40 min left]"), first
+    assert second.endswith(", 1 s left]"), second
+    assert "left" not in last  # done: nothing left to say
+
+
 def test_a_quiet_interval_prints_only_the_last_line():
     stream = io.StringIO()
     bar = progress(100, "eval T", stream=stream)
