@@ -50,7 +50,8 @@ Reference = Callable[[int], float]
 class ReproduceConfig:
     # A config in policies/ with a published figure, e.g. act_lift_peg_upright_state.
     config: str = setting(positional=True)
-    # The working folder (default outputs/reproduce/<config>; a recording there is resumed).
+    # The working folder (default outputs/reproduce/<config>): the recording, resumed if there, and a folder per
+    # training seed (seed<N>/: its checkpoint, reports and verdict).
     out: Path | None = setting(None)
     # Training steps (default: the published run's).
     steps: int | None = setting(None, check=optional(positive_int))
