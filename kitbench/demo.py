@@ -174,7 +174,7 @@ class LearningLoop:
 
 
 # From the camera on both: the GPU's config, and the one sized for 2 CPU cores (bf16, batch 32, 2,500 steps, 96x96:
-# the 128x128 config's 573/600 at 0.59x its update, docs/studies/pixels-lift-peg-act.md)
+# 0.59x the 128x128 config's update, docs/studies/pixels-lift-peg-act.md; its figure: docs/results.md)
 LOOP_CONFIG = {True: "act_lift_peg_upright_rgb", False: "act_lift_peg_upright_rgb_96_cpu"}
 
 

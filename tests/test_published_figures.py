@@ -67,8 +67,10 @@ def test_the_heldout_seeds_are_the_documented_draw_and_disjoint_from_the_selecti
     for name, entry in published.items():
         assert list(entry.heldout_seeds) == drawn[name], name
         assert len(entry.heldout_seeds) >= 3 and not set(entry.heldout_seeds) & set(entry.selection_seeds)
-        # every figure so far pools the seeds that chose it; reproduce's default seed stays the first of them
-        assert entry.figure_seeds == "selection" and entry.seeds[0] == 1000
+        # reproduce's default seed is the first of the seeds the figure pools; a held-out figure keeps the selection
+        # seeds' figures beside it
+        assert entry.seeds[0] == (1000 if entry.figure_seeds == "selection" else entry.heldout_seeds[0]), name
+        assert entry.figure_seeds == "selection" or entry.selection_rate is not None, name
         # the pooled figure is its training seeds' figures added up
         assert (sum(entry.seed_success), sum(entry.seed_episodes)) == (entry.success, entry.episodes), name
 
