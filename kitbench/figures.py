@@ -150,7 +150,7 @@ def policies_section(published: Mapping[str, Published]) -> str:
             row(
                 [
                     f"`{name}`",
-                    f"{figure}; {entry.figure_seeds} seeds {seeds}",
+                    f"{figure}; {'held-out' if entry.figure_seeds == 'heldout' else 'selection'} seeds {seeds}",
                     f"{entry.train_minutes:.1f} min on {entry.device}",
                 ]
             )
