@@ -9,58 +9,13 @@ from pathlib import Path
 
 import pytest
 
+from bench.structure import module_imports
+
 PACKAGE = Path(__file__).resolve().parents[1] / "kitbench"
 PLUGIN = Path(__file__).resolve().parents[1] / "integrations" / "lerobot_env_kitbench"
 # Shared code that must ask tasks through their hooks instead of naming them.
 TASK_FREE = ("evaluation", "recording", "policies", "envs", "cli.py", "demo.py", "doctor.py", "registration.py")
 TASK_WORDS = re.compile(r"LiftPeg|AssemblingKits|\bpeg\b|shape_id", re.IGNORECASE)
-
-
-def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
-    if parts[-1] == "__init__":
-        parts.pop()
-    return ".".join(parts)
-
-
-def _sources() -> dict[str, tuple[Path, ast.Module]]:
-    return {_module_name(p): (p, ast.parse(p.read_text())) for p in sorted(PACKAGE.rglob("*.py"))}
-
-
-def _type_checking_nodes(tree: ast.Module) -> set[int]:
-    """ids of nodes inside `if TYPE_CHECKING:` blocks (imports there never run)."""
-    skip = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            for child in node.body:
-                skip.update(id(n) for n in ast.walk(child))
-    return skip
-
-
-def _imports(name: str, path: Path, tree: ast.Module, modules: set[str]) -> set[str]:
-    """kitbench modules that `name` imports explicitly, at module level or inside functions."""
-    skip = _type_checking_nodes(tree)
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    found = set()
-    for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
-        targets = []
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                base = ".".join(
-                    package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else [])
-                )
-            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
-        for target in targets:
-            while target and target not in modules:
-                target = target.rpartition(".")[0]
-            if target and target != name:
-                found.add(target)
-    return found
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -96,9 +51,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 @pytest.fixture(scope="module")
 def module_graph() -> dict[str, set[str]]:
-    sources = _sources()
-    modules = set(sources)
-    return {name: _imports(name, path, tree, modules) for name, (path, tree) in sources.items()}
+    return module_imports(PACKAGE)
 
 
 def test_no_import_cycles_between_modules(module_graph):
