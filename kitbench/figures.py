@@ -67,7 +67,11 @@ def machine(entry: Published) -> str:
     if not entry.reference_seconds:
         return f"{entry.device}; no reference workload"
     threads = entry.threads or 1
-    return f"{entry.device}; reference {entry.reference_seconds:.1f} s on {threads} thread{'s' if threads > 1 else ''}"
+    step = "" if entry.step_seconds is None else f"; a step {entry.step_seconds:.2f} s"
+    return (
+        f"{entry.device}; reference {entry.reference_seconds:.1f} s on {threads} thread{'s' if threads > 1 else ''}"
+        f"{step}"
+    )
 
 
 def figure_from(entry: Published) -> str:

@@ -40,6 +40,7 @@ OPTIONAL = (
     "eval_minutes",
     "eval_batch_size",
     "reference_seconds",
+    "step_seconds",
     "threads",
     "heldout_success",
     "heldout_episodes",
@@ -68,6 +69,7 @@ class Published:
     eval_minutes: float | None = None
     eval_batch_size: int = 1
     reference_seconds: float | None = None  # kitbench.training.reference on that machine, on the training's threads
+    step_seconds: float | None = None  # a step of the published training (kitbench.training.pace, from its log)
     threads: int | None = None  # torch's threads in the published trainings (default: the cores workers leave)
     seed_success: tuple[int, ...] = ()  # each training seed's successes over every suite, and its episodes
     seed_episodes: tuple[int, ...] = ()
@@ -110,12 +112,15 @@ class Published:
         """The selection seeds' pooled figure on the validation suite, where the row keeps it."""
         return sum(self.selection_success) / sum(self.selection_episodes) if self.selection_success else None
 
-    def train_minutes_here(self, here: float, steps: int | None = None) -> float | None:
-        """The published training minutes on a machine whose reference workload took `here` s, for `steps` updates
-        (default: the published run's); None when the row has no reference to scale by."""
+    def train_minutes_here(self, here: float, steps: int | None = None, step_here: float | None = None) -> float | None:
+        """The published training minutes on this machine for `steps` updates (default: the published run's): scaled
+        by a step's seconds here (`step_here`, kitbench.training.pace) where the row keeps its own, else by the
+        reference workload's (`here` s); None when the row has neither to scale by."""
+        minutes = self.train_minutes * (steps / self.steps if steps else 1.0)
+        if step_here and self.step_seconds:
+            return scaled_minutes(minutes, self.step_seconds, step_here)
         if not self.reference_seconds:
             return None
-        minutes = self.train_minutes * (steps / self.steps if steps else 1.0)
         return scaled_minutes(minutes, self.reference_seconds, here)
 
     def eval_minutes_here(self, here: float) -> float | None:
@@ -172,6 +177,7 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         eval_minutes=None if "eval_minutes" not in entry else float(entry["eval_minutes"]),
         eval_batch_size=int(entry.get("eval_batch_size", 1)),
         reference_seconds=None if "reference_seconds" not in entry else float(entry["reference_seconds"]),
+        step_seconds=None if "step_seconds" not in entry else float(entry["step_seconds"]),
         threads=None if "threads" not in entry else int(entry["threads"]),
         seed_success=tuple(int(s) for s in entry.get("seed_success", ())),
         seed_episodes=tuple(int(n) for n in entry.get("seed_episodes", ())),

@@ -12,8 +12,10 @@ of another request (`--steps`, `--seed`, the threads, the data) is refused befor
 run's rate with the 95% prediction interval of a new training seed (`stats.prediction_interval`: this run's
 sampling error, the published figure's, and the spread between its training seeds), not with the pooled
 figure's own interval, which is narrower than any single run's. Before the training starts, the published
-training minutes are scaled to this machine by a fixed reference workload (`kitbench.training.reference`) timed
-here, and printed as what to expect; the workload is timed again as the training ends.
+training minutes are scaled to this machine and printed as what to expect: by the config's own steps timed here
+(`kitbench.training.pace`: lerobot-train for a few steps) where the published row keeps its step time, else by a
+fixed reference workload (`kitbench.training.reference`) timed here; the workload is timed again as the training
+ends, and the training's own step time is read from its log.
 
 Each training seed keeps its checkpoint, its reports and its verdict (`reproduce.json`) in `<out>/seed<N>/`,
 beside the recording they share (`<out>/data`).
@@ -151,9 +153,12 @@ def record_data(planned: Run, say=print) -> int:
     return record(planned.recipe).exit_code
 
 
-def expectation(entry: Published, here: float, threads: int, steps: int | None = None) -> str:
-    """What the training should take on this machine, from the published minutes and the two reference workloads."""
-    minutes = entry.train_minutes_here(here, steps)
+def expectation(
+    entry: Published, here: float, threads: int, steps: int | None = None, step: float | None = None
+) -> str:
+    """What the training should take on this machine, from the published minutes scaled by a step's seconds here
+    (`step`, where the row keeps its own) or else by the two reference workloads."""
+    minutes = entry.train_minutes_here(here, steps, step)
     updates = steps or entry.steps
     if minutes is None:
         return (
@@ -161,23 +166,38 @@ def expectation(entry: Published, here: float, threads: int, steps: int | None =
             f"{entry.device} came without a reference workload); this machine's reference {here:.1f} s on {threads} "
             "thread(s)"
         )
+    published = f"published {entry.train_minutes:.1f} min for {entry.steps} on {entry.device}"
+    if step and entry.step_seconds:
+        return (
+            f"expected training time: about {minutes:.1f} min here for {updates} steps (a step {step:.3f} s here, "
+            f"lerobot-train's own timing on {threads} thread(s); {published} at {entry.step_seconds:.3f} s a step)"
+        )
     return (
-        f"expected training time: about {minutes:.1f} min here for {updates} steps (published "
-        f"{entry.train_minutes:.1f} min for {entry.steps} on {entry.device}, whose reference workload took "
-        f"{entry.reference_seconds:.1f} s; "
-        f"here {here:.1f} s on {threads} thread(s))"
+        f"expected training time: about {minutes:.1f} min here for {updates} steps ({published}, whose reference "
+        f"workload took {entry.reference_seconds:.1f} s; here {here:.1f} s on {threads} thread(s))"
     )
 
 
 def train_policy(planned: Run, say=print, measure: Reference = reference_seconds) -> tuple[dict, float]:
-    """Time the reference workload, say what the training should take here, then train (or reuse the checkpoint
-    the same request trained); what `run.train` returns and the reference seconds."""
-    from kitbench.training import run
+    """Time the reference workload (and, where the published row keeps its step time, the config's own steps), say
+    what the training should take here, then train (or reuse the checkpoint the same request trained); what
+    `run.train` returns, with the step times before and during the training, and the reference seconds."""
+    from kitbench.training import pace, run
 
     training = planned.training
     threads = int(training.threads)
     here = measure(threads)
-    say(expectation(planned.entry, here, threads, planned.config.steps))
+    step = None
+    reused = run.finished_request(planned.policy_dir) == training.request()
+    if planned.entry.step_seconds and not reused:
+        say(f"timing {pace.PROBE_STEPS} steps of lerobot-train here (its log: {planned.policy_dir / pace.PROBE_LOG})")
+        try:
+            step = pace.probe(training)
+        except run.CommandFailed as exc:
+            raise KitbenchError(
+                f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}"
+            ) from None
+    say(expectation(planned.entry, here, threads, planned.config.steps, step))
     request = training.request()
     say(f"training: {run.shell_line(request['command'], request['env'])}")
     say(f"  its log: {planned.policy_dir / 'train.log'}")
@@ -187,6 +207,11 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
         raise KitbenchError(f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}") from None
     if trained["reused"]:
         say(f"  reused the checkpoint the same command trained ({trained['seconds'] / 60:.1f} min then)")
+    trained = {
+        **trained,
+        "step_seconds": pace.step_seconds(planned.policy_dir / "train.log"),
+        "probe_step_seconds": step,
+    }
     return trained, here
 
 
@@ -249,10 +274,17 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
         else ("below" if rate < expected[0] else "above") + " what the published runs predict"
     )
     minutes, after = trained["seconds"] / 60, trained["reference_after"]
-    there = entry.train_minutes_here(here)  # the published run's steps, as published
+    there = entry.train_minutes_here(here, None, trained["probe_step_seconds"])  # the published run's steps
     scaled = "" if there is None else f"; the published {entry.train_minutes:.1f} min are {there:.1f} here"
+    pace = ""
+    if trained["step_seconds"] is not None:
+        before = trained["probe_step_seconds"]
+        pace = f"a step {trained['step_seconds']:.3f} s" + (
+            "" if before is None else f" ({before:.3f} s timed before it)"
+        )
+        pace += "; "
     say(
-        f"training: {minutes:.1f} min for {trained['steps']} steps (reference workload {here:.1f} s before it, "
+        f"training: {minutes:.1f} min for {trained['steps']} steps ({pace}reference workload {here:.1f} s before it, "
         f"{after:.1f} s after{scaled})"
     )
     result = {
@@ -266,6 +298,8 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
         "train_minutes": minutes,
         "reference_seconds": here,
         "reference_seconds_after_training": after,
+        "step_seconds": trained["step_seconds"],
+        "probe_step_seconds": trained["probe_step_seconds"],
         "train_command": trained["command"],
     }
     planned.result.write_text(json.dumps(result, indent=1) + "\n")

@@ -33,8 +33,9 @@ def test_every_published_figure_names_a_shipped_config_and_recipe_and_every_stat
         assert str(load_recipe(entry.recipe).out) == config["dataset"]["root"], name
 
 
-def _published(tmp_path: Path, seed_success: list[int], seed_episodes: list[int]) -> Path:
-    """The config's published entry, scored on both suites, with stand-in training seeds' figures."""
+def _published(tmp_path: Path, seed_success: list[int], seed_episodes: list[int], step: float | None = None) -> Path:
+    """The config's published entry, scored on both suites, with stand-in training seeds' figures (and a stand-in
+    step time, `step`)."""
     text = PUBLISHED.read_text()
     start = text.index(f"[{CONFIG}]")
     end = text.index("\n[", start)
@@ -42,6 +43,8 @@ def _published(tmp_path: Path, seed_success: list[int], seed_episodes: list[int]
     for key, values in (("seed_success", seed_success), ("seed_episodes", seed_episodes)):
         entry, replaced = re.subn(rf"(?m)^{key} = \[.*\]$", f"{key} = {values}", entry)
         assert replaced == 1, f"no {key} line in the [{CONFIG}] entry"
+    if step is not None:
+        entry = entry.replace("\nreference_seconds =", f"\nstep_seconds = {step}\nreference_seconds =", 1)
     path = tmp_path / f"published-{sum(seed_success)}.toml"
     path.write_text(
         entry.replace('suites = ["lift_peg_upright"]', 'suites = ["lift_peg_upright", "lift_peg_upright_heldout"]')
@@ -52,15 +55,18 @@ def _published(tmp_path: Path, seed_success: list[int], seed_episodes: list[int]
 def test_reproduce_runs_end_to_end_and_compares_with_where_a_new_seed_lands(
     tmp_path, needs_vulkan, capsys, monkeypatch
 ):
-    from kitbench.training import reference
+    from kitbench.training import pace, reference
 
-    # the machine's reference workload cut to a few updates: that it is timed, not its figure, is the point here
+    # the machine's reference workload and the config's own steps cut to a few: that they are timed, not their
+    # figures, is the point here
     monkeypatch.setattr(reference, "WARMUP", 1)
     monkeypatch.setattr(reference, "STEPS", 2)
+    monkeypatch.setattr(pace, "PROBE_STEPS", 2)
+    monkeypatch.setattr(pace, "WINDOW", 1)
     out = tmp_path / "run"
     argv = ["reproduce", CONFIG, "--steps", "2", "--demos", "2", "--eval-episodes", "2", "--out", str(out)]
     # three training seeds at 50% of 4: a 4-episode run lands anywhere
-    assert cli.main([*argv, "--published", str(_published(tmp_path, [2, 2, 2], [4, 4, 4]))]) == 0
+    assert cli.main([*argv, "--published", str(_published(tmp_path, [2, 2, 2], [4, 4, 4], step=0.05))]) == 0
     captured = capsys.readouterr()
     printed = captured.out
     result = json.loads((out / "seed1000" / "reproduce.json").read_text())
@@ -71,13 +77,20 @@ def test_reproduce_runs_end_to_end_and_compares_with_where_a_new_seed_lands(
     assert (out / "seed1000" / "eval_lift_peg_upright_heldout" / "report.json").is_file()
     assert result["train_command"][-1] == "--steps=2" and "--seed=1000" in result["train_command"]
     assert result["reference_seconds"] > 0 and result["reference_seconds_after_training"] > 0
+    # the published row keeps its step time, so the config's own steps were timed here first, into the scratch
+    assert f"timing 2 steps of lerobot-train here (its log: {out / 'seed1000' / pace.PROBE_LOG})" in printed
+    assert result["probe_step_seconds"] > 0 and "step:2 " in (out / "seed1000" / pace.PROBE_LOG).read_text()
+    assert f"a step {result['probe_step_seconds']:.3f} s here, lerobot-train's own timing" in printed
+    assert sorted(p.name for p in (out / "seed1000").iterdir() if p.is_dir()) == sorted(
+        ["train", "eval_lift_peg_upright", "eval_lift_peg_upright_heldout"]
+    )
 
     # the recording and the training are reused, not made again; a figure the run cannot reach exits 3
     always = [1000, 1000, 1000] if result["success"] < 4 else [0, 0, 0]
-    status = cli.main([*argv, "--published", str(_published(tmp_path, always, [1000, 1000, 1000]))])
+    status = cli.main([*argv, "--published", str(_published(tmp_path, always, [1000, 1000, 1000], step=0.05))])
     printed = capsys.readouterr().out
     assert status == 3 and "what the published runs predict" in printed
-    assert "reused the checkpoint the same command trained" in printed
+    assert "reused the checkpoint the same command trained" in printed and "timing" not in printed
 
 
 def test_the_verdict_counts_the_spread_between_training_seeds():
