@@ -181,6 +181,7 @@ LOOP_CONFIG = {True: "act_lift_peg_upright_rgb", False: "act_lift_peg_upright_rg
 def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     """The camera config for this machine: the GPU's where torch sees CUDA, else the one trained on 2 CPU cores."""
     from kitbench.reproduce import load_published
+    from kitbench.training.precision import amp_flags
     from kitbench.training.reference import reference_seconds, scaled_minutes
     from kitbench.training.run import train_threads
 
@@ -197,13 +198,16 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
         minutes = f"about {scaled_minutes(entry.train_minutes, entry.reference_seconds, here):.0f} min of training here"
     else:
         minutes = "its training time here not estimated"
+    precision = amp_flags(config)
+    if precision:  # the published minutes were bf16's: say what this machine trains in instead
+        minutes += "; in fp32, as this CPU computes no bf16"
     kitbench, train = command_path("kitbench"), command_path("lerobot-train")
     return LearningLoop(
         config=name,
         published=published,
         minutes=minutes,
         record=[kitbench, "record", str(recipe)],
-        train=[train, f"--config_path={shown(config)}", f"--output_dir={train_dir}"],
+        train=[train, f"--config_path={shown(config)}", f"--output_dir={train_dir}", *precision],
         train_env={"OMP_NUM_THREADS": threads},
         score=[kitbench, "eval", "--suite", str(suite), "--policy", f"lerobot:{train_dir}"],
         reproduce=[kitbench, "reproduce", name],

@@ -148,8 +148,31 @@ def check_fetch_assets() -> Check:
     return Check("fetch model", where["present"], found if where["present"] else missing, fix)
 
 
+def check_bf16() -> Check:
+    """Whether the CPU camera configs' bf16 autocast runs here, or they train in fp32 (never a failure)."""
+    import torch
+
+    from kitbench.training.precision import cpu_bf16
+
+    capability = torch.backends.cpu.get_cpu_capability()
+    if cpu_bf16():
+        return Check("cpu bf16", True, f"yes ({capability}): the CPU camera configs train under bf16 autocast")
+    return Check(
+        "cpu bf16",
+        True,
+        f"no ({capability}): the CPU camera configs train in fp32 here (--policy.use_amp=false; docs/training.md)",
+    )
+
+
 def run_doctor(stream=sys.stdout) -> int:
-    checks = [*check_versions(), check_vulkan(), check_video_decoding(), check_ray(), check_fetch_assets()]
+    checks = [
+        *check_versions(),
+        check_vulkan(),
+        check_video_decoding(),
+        check_ray(),
+        check_fetch_assets(),
+        check_bf16(),
+    ]
     width = max(len(c.name) for c in checks)
     for c in checks:
         print(f"{'ok ' if c.ok else 'BAD'} {c.name:<{width}}  {c.detail}", file=stream)

@@ -182,7 +182,7 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
     """Time the reference workload (and, where the published row keeps its step time, the config's own steps), say
     what the training should take here, then train (or reuse the checkpoint the same request trained); what
     `run.train` returns, with the step times before and during the training, and the reference seconds."""
-    from kitbench.training import pace, run
+    from kitbench.training import pace, precision, run
 
     training = planned.training
     threads = int(training.threads)
@@ -199,6 +199,9 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
             ) from None
     say(expectation(planned.entry, here, threads, planned.config.steps, step))
     request = training.request()
+    fp32 = precision.why(tuple(request["command"]))
+    if fp32:
+        say(fp32)
     say(f"training: {run.shell_line(request['command'], request['env'])}")
     say(f"  its log: {planned.policy_dir / 'train.log'}")
     try:

@@ -29,6 +29,7 @@ from datetime import datetime
 from pathlib import Path
 
 from kitbench.errors import KitbenchError
+from kitbench.training.precision import amp_flags
 from kitbench.training.reference import reference_seconds
 
 BIN = Path(sys.executable).parent  # the venv's console scripts, whichever way Python was started
@@ -164,7 +165,7 @@ def train_command(
         command.append(f"--seed={seed}")
     if steps is not None:
         command.append(f"--steps={steps}")
-    return [*command, *extra]
+    return [*command, *amp_flags(config), *extra]
 
 
 def count_parameters(log: Path, checkpoint: Path) -> tuple[int, str]:
