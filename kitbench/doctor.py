@@ -154,14 +154,16 @@ def check_bf16() -> Check:
 
     from kitbench.training.precision import cpu_bf16
 
-    capability = torch.backends.cpu.get_cpu_capability()
-    if cpu_bf16():
-        return Check("cpu bf16", True, f"yes ({capability}): the CPU camera configs train under bf16 autocast")
-    return Check(
-        "cpu bf16",
-        True,
-        f"no ({capability}): the CPU camera configs train in fp32 here (--policy.use_amp=false; docs/training.md)",
-    )
+    capability, bf16 = torch.backends.cpu.get_cpu_capability(), cpu_bf16()
+    if bf16 is None:
+        detail = f"unknown ({platform.machine()}, {capability}): the CPU camera configs train as written"
+    elif bf16:
+        detail = f"yes ({capability}): the CPU camera configs train under bf16 autocast"
+    else:
+        detail = (
+            f"no ({capability}): the CPU camera configs train in fp32 here (--policy.use_amp=false; docs/training.md)"
+        )
+    return Check("cpu bf16", True, detail)
 
 
 def run_doctor(stream=sys.stdout) -> int:

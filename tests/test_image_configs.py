@@ -85,6 +85,7 @@ def test_each_slow_config_has_its_twin_in_make_test():
 def test_image_config_trains_on_a_cpu_and_its_checkpoint_is_scored(path, needs_vulkan, datasets, tmp_path):
     config = json.loads(path.read_text())
     from kitbench.reproduce import load_published
+    from kitbench.training.precision import amp_flags
 
     published = load_published().get(path.stem)
     on_cpu = path.stem.endswith("_cpu")  # the configs sized for 2 CPU cores; the others are the GPU's
@@ -104,6 +105,7 @@ def test_image_config_trains_on_a_cpu_and_its_checkpoint_is_scored(path, needs_v
         "--save_freq=2",
         "--env_eval_freq=0",
         "--log_freq=1",
+        *amp_flags(path),  # fp32 on a CPU without bf16, as kitbench's own commands train there
     )
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((checkpoint / "config.json").read_text())

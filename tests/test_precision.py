@@ -84,3 +84,26 @@ def test_doctor_says_which_precision_the_camera_configs_train_in(monkeypatch):
     assert check.ok and check.detail.startswith("no (") and "train in fp32 here (--policy.use_amp=false" in check.detail
     monkeypatch.setattr(precision, "cpu_bf16", lambda: True)
     assert check_bf16().detail.startswith("yes (")
+    monkeypatch.setattr(precision, "cpu_bf16", lambda: None)
+    assert check_bf16().detail.endswith("the CPU camera configs train as written")
+
+
+@pytest.mark.parametrize(
+    "machine,capability,expected",
+    [
+        ("x86_64", "AVX512", True),  # oneDNN's avx512_core: bf16 natively or emulated
+        ("x86_64", "AVX2", False),  # the CPU measured at 16-20x slower under autocast
+        ("AMD64", "DEFAULT", False),
+        ("aarch64", "SVE256", None),  # not measured: the config's setting stands
+    ],
+)
+def test_bf16_is_read_from_torchs_cpu_capability(monkeypatch, machine, capability, expected):
+    import platform
+
+    import torch
+
+    monkeypatch.delenv(precision.VAR, raising=False)
+    monkeypatch.setattr(platform, "machine", lambda: machine)
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
+    assert precision.cpu_bf16() is expected
+    assert precision.amp_flags(CAMERA_CPU) == (() if expected is not False else ("--policy.use_amp=false",))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 from pathlib import Path
 
 from kitbench.errors import KitbenchError
@@ -19,23 +20,25 @@ from kitbench.errors import KitbenchError
 VAR = "KITBENCH_CPU_AMP"
 CHOICES = ("1", "0")
 OFF_FLAG = "--policy.use_amp=false"
+X86 = ("x86_64", "amd64", "i386", "i686", "x86")
 
 
-def cpu_bf16() -> bool:
-    """Whether torch's oneDNN computes bf16 on this CPU (natively, or emulated on AVX-512 at a modest cost)."""
+def cpu_bf16() -> bool | None:
+    """Whether torch's oneDNN computes bf16 on this CPU. On x86 it does with AVX-512 (natively with AVX-512 BF16 or
+    AMX, emulated otherwise: torch's CPU capability "AVX512") and not with AVX2 alone; None on other CPUs, where the
+    config's setting stands."""
     import torch
 
-    try:
-        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):  # a torch built without oneDNN: no bf16 kernels either
-        return False
+    if platform.machine().lower() not in X86:
+        return None
+    return torch.backends.cpu.get_cpu_capability() == "AVX512"
 
 
 def keep_cpu_amp() -> bool:
-    """`KITBENCH_CPU_AMP` if set (one line naming the choices otherwise), else whether the CPU computes bf16."""
+    """`KITBENCH_CPU_AMP` if set (one line naming the choices otherwise), else unless the CPU computes no bf16."""
     value = os.environ.get(VAR, "").strip()
     if not value:
-        return cpu_bf16()
+        return cpu_bf16() is not False
     if value not in CHOICES:
         raise KitbenchError(f"{VAR}={value!r}; valid choices: 1 (keep the config's bf16 autocast), 0 (train in fp32)")
     return value == "1"
