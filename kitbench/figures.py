@@ -81,9 +81,9 @@ def figure_from(entry: Published) -> str:
     trained = zip(entry.selection_seeds, entry.selection_success, entry.selection_episodes, strict=True)
     cells = ", ".join(f"{seed}: {percent(s / n)}" for seed, s, n in trained)
     below = "; above the held-out figure's interval" if entry.selection_rate > entry.interval[1] else ""
+    where = "the test suites, before the split" if entry.selection_on_test_suites else f"`{entry.selection_suite}`"
     return (
-        f"held-out seeds; chosen at selection seeds {cells} on `{entry.selection_suite}` "
-        f"(pooled {percent(entry.selection_rate)}{below})"
+        f"held-out seeds; chosen at selection seeds {cells} on {where} (pooled {percent(entry.selection_rate)}{below})"
     )
 
 

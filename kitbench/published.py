@@ -47,6 +47,7 @@ OPTIONAL = (
     "selection_suite",
     "selection_success",
     "selection_episodes",
+    "selection_on_test_suites",
 )
 
 
@@ -80,6 +81,8 @@ class Published:
     selection_suite: str | None = None
     selection_success: tuple[int, ...] = ()
     selection_episodes: tuple[int, ...] = ()
+    # the selection seeds' figures were scored on the figure's own suites, before the split: no validation suite
+    selection_on_test_suites: bool = False
     extra: dict = field(default_factory=dict)  # the optional keys as written, for readers that predate their fields
 
     def __post_init__(self) -> None:
@@ -186,6 +189,7 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         selection_suite=entry.get("selection_suite"),
         selection_success=tuple(int(s) for s in entry.get("selection_success", ())),
         selection_episodes=tuple(int(n) for n in entry.get("selection_episodes", ())),
+        selection_on_test_suites=entry.get("selection_on_test_suites", False) is True,
         extra={k: entry[k] for k in (*OPTIONAL, "device") if k in entry},
     )
     if not 0 <= row.success <= row.episodes:
@@ -217,6 +221,12 @@ def _check_selection(row: Published, where: str) -> None:
         return
     if row.heldout_success or row.heldout_episodes:
         raise KitbenchError(f"{where}: heldout_success is seed_success when figure_seeds is heldout; leave it out")
+    if row.selection_on_test_suites:  # chosen before the split: the seeds' figures on the test suites themselves
+        if "selection_suite" in given:
+            raise KitbenchError(f"{where}: selection_on_test_suites has no selection_suite; the figure's are it")
+        if len(given) != 2:
+            raise KitbenchError(f"{where}: selection_on_test_suites needs selection_success and selection_episodes")
+        given.append("selection_suite")
     if len(given) not in (0, 3):
         raise KitbenchError(f"{where}: give selection_suite, selection_success and selection_episodes together")
     if not given:
@@ -232,7 +242,7 @@ def _check_selection(row: Published, where: str) -> None:
         raise KitbenchError(
             f"{where}: selection_success {list(row.selection_success)} is not within 0..selection_episodes"
         )
-    if row.selection_suite in row.suites:
+    if row.selection_suite is not None and row.selection_suite in row.suites:
         raise KitbenchError(
             f"{where}: selection_suite {row.selection_suite!r} is one of the figure's suites; the seeds that chose "
             "are scored on a validation suite"

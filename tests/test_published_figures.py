@@ -143,6 +143,14 @@ def _row(**changes: str | None) -> str:
             {**HELDOUT_FIGURE, "selection_suite": '"lift_peg_upright"'},
             "selection_suite 'lift_peg_upright' is one of the figure's suites",
         ),
+        (
+            {**HELDOUT_FIGURE, "selection_on_test_suites": "true"},
+            "selection_on_test_suites has no selection_suite; the figure's are it",
+        ),
+        (
+            {**HELDOUT_FIGURE, "selection_suite": None, "selection_success": None, "selection_on_test_suites": "true"},
+            "selection_on_test_suites needs selection_success and selection_episodes",
+        ),
     ],
 )
 def test_a_bad_row_is_refused_in_one_line_naming_it(tmp_path, changes, message):
@@ -165,6 +173,16 @@ def test_a_heldout_figure_shows_the_selection_figures_beside_it(tmp_path):
     assert entry.interval[1] < 0.98 and "above the held-out figure's interval" in shown
     path.write_text(_row(**{**HELDOUT_FIGURE, "selection_success": "[50, 50, 50]"}))
     assert "above" not in figures.figure_from(load_published(path)[CONFIG])
+
+
+def test_a_row_chosen_before_the_split_shows_its_selection_figures_on_the_test_suites(tmp_path):
+    path = tmp_path / "published.toml"
+    path.write_text(_row(**{**HELDOUT_FIGURE, "selection_suite": None, "selection_on_test_suites": "true"}))
+    entry = load_published(path)[CONFIG]
+    assert entry.selection_on_test_suites and entry.selection_suite is None
+    assert "selection seeds 1000: 99.0%, 2000: 98.0%, 3000: 97.0% on the test suites, before the split" in (
+        figures.figure_from(entry)
+    )
 
 
 def test_the_learnability_bench_reads_the_same_rows_as_reproduce():
