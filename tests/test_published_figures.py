@@ -29,11 +29,14 @@ def test_the_generated_figures_match_published_toml():
 
 def test_a_changed_figure_changes_every_generated_file_the_headline_included():
     published = load_published()
-    changed = dict(published)
-    changed[CONFIG] = dataclasses.replace(published[CONFIG], success=550, seed_success=(182, 185, 183))
+    changed, row = dict(published), published[figures.HEADLINE_CONFIG]
+    seed_success = (row.seed_success[0] - 1, *row.seed_success[1:])
+    changed[figures.HEADLINE_CONFIG] = dataclasses.replace(row, success=row.success - 1, seed_success=seed_success)
     before, after = figures.render(ROOT, published), figures.render(ROOT, changed)
     assert all(before[p] != after[p] for p in before), "a generated file does not show the row"
-    assert "This loop reaches 91.7% (95% CI 89.2–93.6%)" in after[ROOT / "README.md"]
+    rate = figures.percent((row.success - 1) / row.episodes)
+    assert f"This loop reaches {rate} (95% CI " in after[ROOT / "README.md"]
+    assert f"This loop reaches {figures.percent(row.rate)} (95% CI " in before[ROOT / "README.md"]
 
 
 def test_a_file_without_its_markers_is_refused_in_one_line(tmp_path):
@@ -87,11 +90,24 @@ HELDOUT_FIGURE = {
 }
 
 
+# what a row keeps only once its held-out seeds are in, or keeps optionally: `_row` starts without them
+NOT_IN_A_SELECTION_ROW = (
+    "heldout_success",
+    "heldout_episodes",
+    "selection_suite",
+    "selection_success",
+    "selection_episodes",
+    "selection_on_test_suites",
+)
+
+
 def _row(**changes: str | None) -> str:
-    """The CONFIG row of published.toml with `changes` (key = its TOML value) written over it."""
+    """The CONFIG row of published.toml as a selection figure (its held-out figures left out), with `changes` (key
+    = its TOML value) written over it."""
     text = PUBLISHED.read_text()
     start = text.index(f"[{CONFIG}]")
     entry = text[start : text.index("\n[", start)]
+    changes = {"figure_seeds": '"selection"', **dict.fromkeys(NOT_IN_A_SELECTION_ROW), **changes}
     for key, value in changes.items():
         if value is None:  # left out
             entry = re.sub(rf"(?m)^{key} = .*\n?", "", entry)
@@ -198,28 +214,32 @@ def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_
     from kitbench.reproduce import ReproduceConfig, plan, train_policy
     from kitbench.training import run
 
-    planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=5000))
+    row = load_published()[CONFIG]
+    slow = 2 * row.reference_seconds
+    planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=row.steps // 2))
     # a finished training of this very request: train_policy reuses it, and nothing runs lerobot-train
     checkpoint = planned.training.train_dir / "checkpoints" / "last" / "pretrained_model"
     checkpoint.mkdir(parents=True)
     (checkpoint / "model.safetensors").write_bytes(b"weights")
-    trained = {"seconds": 60.0, "steps": 5000, "reference_after": 6.4, "command": []}
+    trained = {"seconds": 60.0, "steps": row.steps // 2, "reference_after": slow, "command": []}
     (planned.policy_dir / run.TRAIN_STAMP).write_text(
         json.dumps({"request": planned.training.request(), "trained": trained})
     )
     said: list[str] = []
     threads: list[int] = []
 
-    def twice_as_slow(n: int) -> float:  # this machine's reference workload: 6.4 s against the published 3.2
+    def twice_as_slow(n: int) -> float:  # this machine's reference workload: twice the published one's
         threads.append(n)
-        return 6.4
+        return slow
 
     result, here = train_policy(planned, said.append, measure=twice_as_slow)
-    assert result["reused"] is True and here == 6.4 and threads == [1]  # the state config's published thread
-    # half the published 10,000 steps, on a machine twice as slow: the published 13.5 minutes
+    assert result["reused"] is True and here == slow and threads == [1]  # the state config's published thread
+    # half the published steps, on a machine twice as slow: the published minutes (a reused training is not timed
+    # again, so the reference workload scales them even where the row keeps its step time)
     assert said[0] == (
-        "expected training time: about 13.5 min here for 5000 steps (published 13.5 min for 10000 on 2 CPU cores, "
-        "whose reference workload took 3.2 s; here 6.4 s on 1 thread(s))"
+        f"expected training time: about {row.train_minutes:.1f} min here for {row.steps // 2} steps (published "
+        f"{row.train_minutes:.1f} min for {row.steps} on {row.device}, whose reference workload took "
+        f"{row.reference_seconds:.1f} s; here {slow:.1f} s on 1 thread(s))"
     )
     assert said[1].startswith("training: OMP_NUM_THREADS=1 ")
 

@@ -17,6 +17,7 @@ from kitbench.reproduce import PUBLISHED, load_published
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = "act_lift_peg_upright_state"
+SEED = load_published()[CONFIG].seeds[0]  # reproduce's default: the first training seed the figure pools
 
 
 def test_every_published_figure_names_a_shipped_config_and_recipe_and_every_state_config_has_one():
@@ -43,6 +44,7 @@ def _published(tmp_path: Path, seed_success: list[int], seed_episodes: list[int]
     for key, values in (("seed_success", seed_success), ("seed_episodes", seed_episodes)):
         entry, replaced = re.subn(rf"(?m)^{key} = \[.*\]$", f"{key} = {values}", entry)
         assert replaced == 1, f"no {key} line in the [{CONFIG}] entry"
+    entry = re.sub(r"(?m)^step_seconds = .*\n", "", entry)  # the row's own, if any: the stand-in's or none
     if step is not None:
         entry = entry.replace("\nreference_seconds =", f"\nstep_seconds = {step}\nreference_seconds =", 1)
     path = tmp_path / f"published-{sum(seed_success)}.toml"
@@ -69,19 +71,19 @@ def test_reproduce_runs_end_to_end_and_compares_with_where_a_new_seed_lands(
     assert cli.main([*argv, "--published", str(_published(tmp_path, [2, 2, 2], [4, 4, 4], step=0.05))]) == 0
     captured = capsys.readouterr()
     printed = captured.out
-    result = json.loads((out / "seed1000" / "reproduce.json").read_text())
+    result = json.loads((out / f"seed{SEED}" / "reproduce.json").read_text())
     assert result["episodes"] == 4 and result["inside"] is True  # two seeds of each of the two suites
     assert f"{CONFIG}: {result['success']}/4 = " in printed and "consistent with the published figure" in printed
     assert "a new training seed scored on 4 episodes is expected at 0.0%–100.0%" in printed
     assert f"train {CONFIG}: 2/2" in captured.err  # the training's progress, as lerobot-train made it
-    assert (out / "seed1000" / "eval_lift_peg_upright_heldout" / "report.json").is_file()
-    assert result["train_command"][-1] == "--steps=2" and "--seed=1000" in result["train_command"]
+    assert (out / f"seed{SEED}" / "eval_lift_peg_upright_heldout" / "report.json").is_file()
+    assert result["train_command"][-1] == "--steps=2" and f"--seed={SEED}" in result["train_command"]
     assert result["reference_seconds"] > 0 and result["reference_seconds_after_training"] > 0
     # the published row keeps its step time, so the config's own steps were timed here first, into the scratch
-    assert f"timing 2 steps of lerobot-train here (its log: {out / 'seed1000' / pace.PROBE_LOG})" in printed
-    assert result["probe_step_seconds"] > 0 and "step:2 " in (out / "seed1000" / pace.PROBE_LOG).read_text()
+    assert f"timing 2 steps of lerobot-train here (its log: {out / f'seed{SEED}' / pace.PROBE_LOG})" in printed
+    assert result["probe_step_seconds"] > 0 and "step:2 " in (out / f"seed{SEED}" / pace.PROBE_LOG).read_text()
     assert f"a step {result['probe_step_seconds']:.3f} s here, lerobot-train's own timing" in printed
-    assert sorted(p.name for p in (out / "seed1000").iterdir() if p.is_dir()) == sorted(
+    assert sorted(p.name for p in (out / f"seed{SEED}").iterdir() if p.is_dir()) == sorted(
         ["train", "eval_lift_peg_upright", "eval_lift_peg_upright_heldout"]
     )
 
@@ -236,9 +238,9 @@ def test_reproduce_refuses_to_train_over_a_finished_training_before_it_records(t
     from kitbench.training import run
 
     out = tmp_path / "run"
-    policy_dir = out / "seed1000"
+    policy_dir = out / f"seed{SEED}"
     config = ROOT / "policies" / f"{CONFIG}.json"
-    weights = _finished(policy_dir, run.Training(config, out / "data", policy_dir, "1", seed=1000, data_stamp="d"))
+    weights = _finished(policy_dir, run.Training(config, out / "data", policy_dir, "1", seed=SEED, data_stamp="d"))
 
     def no_recording(*args, **kwargs):
         raise AssertionError("recorded before the refusal")
@@ -250,7 +252,7 @@ def test_reproduce_refuses_to_train_over_a_finished_training_before_it_records(t
     assert "holds a finished training of another request (" in err and "--steps=2" in err
     assert "pass --overwrite to replace it, or another --out to keep it" in err
     model = policy_dir / "train" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors"
-    assert model.read_bytes() == weights and sorted(p.name for p in out.iterdir()) == ["seed1000"]
+    assert model.read_bytes() == weights and sorted(p.name for p in out.iterdir()) == [f"seed{SEED}"]
 
 
 def test_an_unpublished_config_trains_on_the_threads_its_kind_was_measured_fastest_on(monkeypatch):
