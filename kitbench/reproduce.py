@@ -167,10 +167,17 @@ def expectation(
             "thread(s)"
         )
     published = f"published {entry.train_minutes:.1f} min for {entry.steps} on {entry.device}"
+    timed = f"a step {step:.3f} s here, lerobot-train's own timing on {threads} thread(s)" if step else ""
     if step and entry.step_seconds:
         return (
-            f"expected training time: about {minutes:.1f} min here for {updates} steps (a step {step:.3f} s here, "
-            f"lerobot-train's own timing on {threads} thread(s); {published} at {entry.step_seconds:.3f} s a step)"
+            f"expected training time: about {minutes:.1f} min here for {updates} steps ({timed}; {published} at "
+            f"{entry.step_seconds:.3f} s a step)"
+        )
+    if step:  # no published step to scale by: the steps alone, and what the reference workload says beside them
+        return (
+            f"expected training time: its {updates} steps alone take about {updates * step / 60:.1f} min here "
+            f"({timed}; {published} came without a step time; by the reference workload, {entry.reference_seconds:.1f} "
+            f"s there and {here:.1f} s here: about {minutes:.1f} min)"
         )
     return (
         f"expected training time: about {minutes:.1f} min here for {updates} steps ({published}, whose reference "
@@ -189,7 +196,7 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
     here = measure(threads)
     step = None
     reused = run.finished_request(planned.policy_dir) == training.request()
-    if planned.entry.step_seconds and not reused:
+    if (planned.entry.step_seconds or pace.reference_misleads(planned.config_path)) and not reused:
         say(f"timing {pace.PROBE_STEPS} steps of lerobot-train here (its log: {planned.policy_dir / pace.PROBE_LOG})")
         try:
             step = pace.probe(training)

@@ -1,16 +1,18 @@
 """A config's training pace on this machine, timed by stock lerobot-train itself.
 
 The reference workload (`kitbench.training.reference`) is a state config's update in fp32; a camera config's update
-is a ResNet under bf16 autocast, whose speed the reference does not carry from one CPU to another
-(docs/learnability.md). So a published row may keep its training's own step time (`step_seconds`), and `probe` times
-the same steps here: lerobot-train with the training's command, data, seed and torch threads for `PROBE_STEPS` steps,
-logging every `WINDOW`, saving nothing, into a temporary folder. A step's seconds are lerobot's own
-`updt_s + data_s` (each the mean over its log window), the median over the windows after the first, which holds the
-warm-up: `step_seconds` reads them from any lerobot-train log, the published training's included.
+is a ResNet under bf16 autocast (fp32 on a CPU without bf16), whose speed the reference does not carry from one CPU
+to another (docs/learnability.md). So a published row may keep its training's own step time (`step_seconds`), and
+for such a row, or a config that trains on images (`reference_misleads`), `probe` times the same steps here:
+lerobot-train with the training's command, data, seed and torch threads for `PROBE_STEPS` steps, logging every
+`WINDOW`, saving nothing, into a temporary folder. A step's seconds are lerobot's own `updt_s + data_s` (each the
+mean over its log window), the median over the windows after the first, which holds the warm-up: `step_seconds`
+reads them from any lerobot-train log, the published training's included.
 """
 
 from __future__ import annotations
 
+import json
 import re
 import statistics
 import tempfile
@@ -24,6 +26,13 @@ WINDOW = 5
 PROBE_LOG = "pace.log"
 # lerobot-train's log line: "step:1K smpl:32K ep:... loss:0.094 grdn:... lr:... updt_s:0.352 data_s:0.003 ..."
 _WINDOW = re.compile(r"\bstep:\S+ .*\bupdt_s:([\d.]+) data_s:([\d.]+)")
+
+
+def reference_misleads(config: Path) -> bool:
+    """Whether the reference workload does not carry `config`'s minutes between machines: a config that trains
+    on camera images (a ResNet, bf16 or not, where the reference is a state config's fp32 transformer)."""
+    env = json.loads(Path(config).read_text()).get("env") or {}
+    return env.get("obs_type", "state") != "state"
 
 
 def step_seconds(log: Path) -> float | None:
