@@ -169,7 +169,8 @@ def headline(published: Mapping[str, Published]) -> str:
     per_suite = entry.episodes // (seeds * suites)
     return (
         f"This loop reaches {percent(entry.rate)} (95% CI {interval(entry)}) on LiftPegUpright from {entry.demos} "
-        f"demonstrations, pooled over {seeds} training seeds and {suites} suites of {per_suite} seeds, in "
+        f"demonstrations, pooled over {seeds} {'held-out ' if entry.figure_seeds == 'heldout' else ''}training seeds "
+        f"and {suites} suites of {per_suite} seeds, in "
         f"{entry.train_minutes:.1f} minutes of training on {entry.device}."
     )
 
