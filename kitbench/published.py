@@ -34,6 +34,10 @@ REQUIRED = (
     "train_minutes",
     "device",
 )
+# the held-out seeds trained so far, beside a figure from the selection seeds
+HELDOUT_FIGURES = ("heldout_success", "heldout_episodes")
+# the selection seeds' figures, beside a figure from the held-out seeds
+SELECTION_FIGURES = ("selection_suite", "selection_success", "selection_episodes", "selection_on_test_suites")
 OPTIONAL = (
     "seed_success",
     "seed_episodes",
@@ -42,12 +46,8 @@ OPTIONAL = (
     "reference_seconds",
     "step_seconds",
     "threads",
-    "heldout_success",
-    "heldout_episodes",
-    "selection_suite",
-    "selection_success",
-    "selection_episodes",
-    "selection_on_test_suites",
+    *HELDOUT_FIGURES,
+    *SELECTION_FIGURES,
 )
 
 

@@ -40,7 +40,7 @@ from kitbench.training.reference import reference_seconds
 
 if TYPE_CHECKING:  # imported where used: the recorder and the training runner load the simulator's stack
     from kitbench.recording.config import RecordConfig
-    from kitbench.training.run import Training
+    from kitbench.training.run import CommandFailed, Training
 
 __all__ = ["PUBLISHED", "Published", "ReproduceConfig", "check", "load_published", "reproduce"]
 THREADS_VAR = "OMP_NUM_THREADS"
@@ -185,6 +185,13 @@ def expectation(
     )
 
 
+def _train_failed(exc: CommandFailed) -> KitbenchError:
+    """A failed lerobot-train (the training or its timed steps) as one error with its log's tail."""
+    from kitbench.training import run
+
+    return KitbenchError(f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}")
+
+
 def train_policy(planned: Run, say=print, measure: Reference = reference_seconds) -> tuple[dict, float]:
     """Time the reference workload (and, where the published row keeps its step time, the config's own steps), say
     what the training should take here, then train (or reuse the checkpoint the same request trained); what
@@ -195,17 +202,15 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
     threads = int(training.threads)
     here = measure(threads)
     step = None
-    reused = run.finished_request(planned.policy_dir) == training.request()
+    request = training.request()
+    reused = run.finished_request(planned.policy_dir) == request
     if (planned.entry.step_seconds or pace.reference_misleads(planned.config_path)) and not reused:
         say(f"timing {pace.PROBE_STEPS} steps of lerobot-train here (its log: {planned.policy_dir / pace.PROBE_LOG})")
         try:
             step = pace.probe(training)
         except run.CommandFailed as exc:
-            raise KitbenchError(
-                f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}"
-            ) from None
+            raise _train_failed(exc) from None
     say(expectation(planned.entry, here, threads, planned.config.steps, step))
-    request = training.request()
     fp32 = precision.why(tuple(request["command"]))
     if fp32:
         say(fp32)
@@ -214,7 +219,7 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
     try:
         trained = run.train(training, progress=True, overwrite=planned.config.overwrite)
     except run.CommandFailed as exc:
-        raise KitbenchError(f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}") from None
+        raise _train_failed(exc) from None
     if trained["reused"]:
         say(f"  reused the checkpoint the same command trained ({trained['seconds'] / 60:.1f} min then)")
     trained = {
@@ -286,15 +291,11 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
     minutes, after = trained["seconds"] / 60, trained["reference_after"]
     there = entry.train_minutes_here(here, None, trained["probe_step_seconds"])  # the published run's steps
     scaled = "" if there is None else f"; the published {entry.train_minutes:.1f} min are {there:.1f} here"
-    pace = ""
-    if trained["step_seconds"] is not None:
-        before = trained["probe_step_seconds"]
-        pace = f"a step {trained['step_seconds']:.3f} s" + (
-            "" if before is None else f" ({before:.3f} s timed before it)"
-        )
-        pace += "; "
+    step, before = trained["step_seconds"], trained["probe_step_seconds"]
+    timed = "" if before is None else f" ({before:.3f} s timed before it)"
+    steps = "" if step is None else f"a step {step:.3f} s{timed}; "
     say(
-        f"training: {minutes:.1f} min for {trained['steps']} steps ({pace}reference workload {here:.1f} s before it, "
+        f"training: {minutes:.1f} min for {trained['steps']} steps ({steps}reference workload {here:.1f} s before it, "
         f"{after:.1f} s after{scaled})"
     )
     result = {

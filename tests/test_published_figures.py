@@ -16,7 +16,7 @@ import pytest
 
 from kitbench import figures
 from kitbench.errors import KitbenchError
-from kitbench.published import PUBLISHED, load_published
+from kitbench.published import HELDOUT_FIGURES, PUBLISHED, SELECTION_FIGURES, load_published
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = "act_lift_peg_upright_state"
@@ -91,14 +91,7 @@ HELDOUT_FIGURE = {
 
 
 # what a row keeps only once its held-out seeds are in, or keeps optionally: `_row` starts without them
-NOT_IN_A_SELECTION_ROW = (
-    "heldout_success",
-    "heldout_episodes",
-    "selection_suite",
-    "selection_success",
-    "selection_episodes",
-    "selection_on_test_suites",
-)
+NOT_IN_A_SELECTION_ROW = (*HELDOUT_FIGURES, *SELECTION_FIGURES)
 
 
 def _row(**changes: str | None) -> str:
