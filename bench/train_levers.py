@@ -5,7 +5,9 @@
 Each config is built as `lerobot-train --config_path=<config>` builds it (lerobot's own `make_dataset`,
 `make_policy`, pre-processor, optimizer and scheduler) on the dataset its recipe records (`--dataset`: one
 recorded at the config's camera size, or record it first), and one update is lerobot-train's own
-`update_policy` on a real batch. Per config it prints:
+`update_policy` on a real batch. The baseline is the config as kitbench's lerobot-train commands train it here:
+fp32 where the config asks for bf16 autocast on a CPU that computes no bf16 (kitbench.training.precision; `bf16`
+measures the autocast there). Per config it prints:
 - **parts** of the baseline update: the vision backbone's forward and backward (timed on the batch's images
   alone), the optimizer's step, the rest (the transformer or U-Net, the loss, gradient clipping), and the data
   a batch costs one loader process (`data`: hidden behind the update when a loader worker has a core);
@@ -31,6 +33,8 @@ import tempfile
 import time
 from contextlib import nullcontext
 from pathlib import Path
+
+from kitbench.training import precision
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIGS = ("act_lift_peg_upright_rgb", "diffusion_lift_peg_upright_rgb", "act_assembling_kits_rgb")
@@ -93,6 +97,8 @@ class Bench:
         self.raw = json.loads(config_path.read_text())
         self.name = config_path.stem
         self.dataset_root = dataset or ROOT / self.raw["dataset"]["root"]
+        # the baseline trains as kitbench's lerobot-train commands do here (kitbench.training.precision)
+        self.amp_here = bool(self.raw["policy"].get("use_amp")) and precision.keep_cpu_amp()
         if not (self.dataset_root / "meta" / "info.json").is_file():
             sys.exit(
                 f"bench/train_levers.py: no dataset at {self.dataset_root}; record it (kitbench record "
@@ -148,6 +154,8 @@ def measure(bench: Bench, lever: str, steps: int) -> dict:
 
     name, _, value = lever.partition("=")
     changes: dict = {}
+    if not bench.amp_here:  # every lever but bf16's runs as kitbench trains here: fp32 on a CPU without bf16
+        changes["policy.use_amp"] = False
     if name == "bf16" or name == "bf16+channels_last":
         changes["policy.use_amp"] = True
     if name == "fp32":  # a config shipped with use_amp measured without it
@@ -300,8 +308,10 @@ def main(argv=None) -> int:
         return 0
     for i, path in enumerate(configs):
         dataset = datasets[i] if datasets else None
-        Bench(path, dataset, args.threads)  # its dataset is there, before any lever runs
+        bench = Bench(path, dataset, args.threads)  # its dataset is there, before any lever runs
         print(f"\n{path.stem} ({args.threads} threads, {args.steps} updates a lever, each lever a fresh process)")
+        if bench.raw["policy"].get("use_amp") and not bench.amp_here:
+            print(f"  each lever but bf16 as kitbench trains here: {precision.why((precision.OFF_FLAG,))}")
         base = None
         for lever in levers:
             result = _in_own_process(path, dataset, lever, args.steps, args.threads)

@@ -4,6 +4,7 @@ builds and runs it; bad arguments are one line (exit 2)."""
 from __future__ import annotations
 
 import functools
+import json
 import re
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from kitbench.recording.recorder import load_recipe, record
+from kitbench.training import precision
 from tests import launch
 from tests.lerobot_cli import OFFLINE
 
@@ -92,3 +94,7 @@ def test_the_bench_times_the_parts_and_the_levers_of_a_real_update(needs_vulkan,
     for lever in levers.split(","):
         row = next(line for line in lines if line.strip().startswith(lever + " "))
         assert "s/update" in row and "samples/s" in row, row
+    # the baseline is the update as kitbench trains it here: fp32 where the CPU computes no bf16, and says so
+    autocast = json.loads((ROOT / "policies" / f"{config}.json").read_text())["policy"]["use_amp"]
+    fp32_here = any("as kitbench trains here: training in fp32" in line for line in lines)
+    assert fp32_here is (autocast and not precision.keep_cpu_amp()), lines[:3]
