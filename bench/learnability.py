@@ -26,11 +26,13 @@ Before anything runs it prints what the run will do and what it will cost: the r
 evaluations, this machine's reference workload (`kitbench.training.reference`: seconds of a fixed update loop on the
 training's threads; every row stores it, and the same workload timed again as each training ends, so a machine
 that slowed down during a long training shows it), and the hours that makes from the config's published figures
-(`policies/published.toml`) scaled by the two machines' reference seconds. The run is resumable: a checkpoint
-whose training finished with the same command, and an evaluation report made by the same command, are reused, so
-a killed run started again picks up where it stopped. A finished training of another request (the command, the
-threads, the data), or whose recording would be recorded again, is refused in one line before anything runs;
-`--overwrite` replaces it.
+(`policies/published.toml`) scaled by the two machines' reference seconds (for a camera config, whose minutes the
+reference does not carry between machines, it says so: docs/learnability.md). Every row keeps its training's own
+step time (`step_seconds`, `kitbench.training.pace`), which a published row records beside its minutes. The run is
+resumable: a checkpoint whose training finished with the same command, and an evaluation report made by the same
+command, are reused, so a killed run started again picks up where it stopped. A finished training of another
+request (the command, the threads, the data), or whose recording would be recorded again, is refused in one line
+before anything runs; `--overwrite` replaces it.
 
 Each row is appended to <out>/results.jsonl with the exact commands, the machine and the versions, and
 <out>/<task>_<obs>_success_vs_demos.png plots success against demos for every (policy, tag) found there, latest row
@@ -75,7 +77,7 @@ from kitbench.metadata import read_recording_settings
 from kitbench.published import Published, load_published
 from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
 from kitbench.registration import canonical_task, task_entry
-from kitbench.training import run
+from kitbench.training import pace, run
 from kitbench.training.reference import reference_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -578,6 +580,7 @@ def _row(
         # the loop's rate where the log dates it: at a few steps start-up (imports, dataset, dataloader workers)
         # would dominate the wall clock
         "steps_per_s": trained["steps"] / (trained["loop_seconds"] or trained["seconds"]),
+        "step_seconds": pace.step_seconds(policy_dir / "train.log"),
         "reference_seconds": reference_s,
         "reference_seconds_after_training": trained.get("reference_after"),
         "success": {"count": k, "episodes": n, "rate": k / n if n else 0.0, "ci95": [lo, hi]},
@@ -678,6 +681,12 @@ def print_cost(plan: Plan, reference_s: float) -> None:
         f"(published {entry.train_minutes} and {'?' if entry.eval_minutes is None else entry.eval_minutes} min on a "
         f"machine whose reference took {entry.reference_seconds} s); recordings not counted"
     )
+    if pace.reference_misleads(plan.config):
+        print(
+            "cost: the reference workload is a state config's update and does not carry a camera config's minutes "
+            "between machines (docs/learnability.md); `kitbench reproduce` times the config's own steps, and each "
+            "training's progress says its time left"
+        )
 
 
 def table(rows: list[dict]) -> str:

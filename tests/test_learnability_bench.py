@@ -111,6 +111,33 @@ def _bench_here(monkeypatch, capsys, *args: str) -> tuple[int, str]:
     return code, captured.out + captured.err
 
 
+@pytest.mark.parametrize(
+    "config,obs,camera",
+    [("act_lift_peg_upright_rgb_96_cpu", "rgb", True), ("act_lift_peg_upright_state", "state", False)],
+)
+def test_the_cost_of_a_camera_config_says_the_reference_workload_does_not_carry_it(
+    tmp_path, capsys, config, obs, camera
+):
+    import bench.learnability as learnability
+
+    argv = [
+        "--task",
+        TASK,
+        "--obs",
+        obs,
+        "--config",
+        str(ROOT / "policies" / f"{config}.json"),
+        "--out",
+        str(tmp_path / "out"),
+    ]
+    plan = learnability.check_args(learnability.build_parser().parse_args([*argv, "--demos", "2"]))
+    learnability.print_cost(plan, 5.0)
+    printed = capsys.readouterr().out
+    assert "cost: about " in printed and "min a training" in printed
+    assert ("does not carry a camera config's minutes between machines" in printed) is camera
+    assert not (tmp_path / "out").exists()
+
+
 def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_path, needs_vulkan, monkeypatch, capsys):
     config = _tiny_config(tmp_path)
     args = ["--config", str(config), "--steps", "2", "--train-seeds", "1,2", "--suites", "standard,heldout"]
@@ -129,6 +156,7 @@ def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_p
     ]
     assert all(r["reference_seconds"] > 0 and r["success"]["episodes"] == 1 for r in rows)
     assert all(r["reference_seconds_after_training"] > 0 for r in rows)  # timed again as each training ended
+    assert all(r["step_seconds"] > 0 for r in rows)  # lerobot-train's own step time, from each training's log
     assert printed.count("s at this run's start)") == 2  # one line per training
     heldout = [r for r in rows if r["suite_name"] == "heldout"]
     assert all("lift_peg_upright_heldout.toml" in r["commands"]["eval"] for r in heldout)
