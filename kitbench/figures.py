@@ -90,8 +90,14 @@ def figure_from(entry: Published) -> str:
 def heldout(entry: Published) -> str:
     if entry.figure_seeds == "heldout":
         return ", ".join(map(str, entry.heldout_seeds)) + " (the figure)"
+    from kitbench.evaluation.stats import wilson_interval
+
     trained = zip(entry.heldout_seeds, entry.heldout_success, entry.heldout_episodes, strict=False)
-    cells = [f"{seed}: {percent(s / n)} ({s}/{n})" for seed, s, n in trained]
+    # a seed whose own interval lies below the row's figure is said to, as figure_from says of a held-out figure
+    below = "; the figure above its interval"
+    cells = [
+        f"{seed}: {percent(s / n)} ({s}/{n}{below * (wilson_interval(s, n)[1] < entry.rate)})" for seed, s, n in trained
+    ]
     waiting = entry.heldout_seeds[len(cells) :]
     if waiting:
         cells.append(", ".join(map(str, waiting)) + " (not yet trained)")

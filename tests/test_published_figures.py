@@ -67,6 +67,9 @@ def test_the_heldout_seeds_are_the_documented_draw_and_disjoint_from_the_selecti
     published = load_published()
     assert list(drawn) == list(published)
     assert figures.heldout(published["diffusion_lift_peg_upright_state"]).startswith("14311: 89.5% (179/200); 25675")
+    # a seed whose own interval lies below its row's figure (88.2%) says so
+    low = dataclasses.replace(published["diffusion_lift_peg_upright_state"], heldout_success=(160,))
+    assert figures.heldout(low).startswith("14311: 80.0% (160/200; the figure above its interval); 25675")
     for name, entry in published.items():
         assert list(entry.heldout_seeds) == drawn[name], name
         assert len(entry.heldout_seeds) >= 3 and not set(entry.heldout_seeds) & set(entry.selection_seeds)
