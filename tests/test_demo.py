@@ -61,7 +61,8 @@ def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeyp
     for command, tiny in (
         # one recording worker: the recipe's two would each start an interpreter of their own for one episode
         (loop.record, ["--episodes", "2", "--no-mcap", "--workers", "1"]),
-        (loop.train, ["--steps=2", "--save_freq=2"]),
+        # no loader worker: spawning the config's is most of a two-step training's start
+        (loop.train, ["--steps=2", "--save_freq=2", "--num_workers=0"]),
         (loop.score, ["--episodes", "2"]),
     ):
         # each a process of its own, forked from a server that imported kitbench and lerobot once (tests/launch.py)
