@@ -12,7 +12,8 @@ measures the autocast there). Per config it prints:
   alone), the optimizer's step, the rest (the transformer or U-Net, the loss, gradient clipping), and the data
   a batch costs one loader process (`data`: hidden behind the update when a loader worker has a core);
 - **levers**, each the baseline with one thing changed, seconds an update (median of `--steps` after warm-up),
-  samples/s and the ratio to the baseline: `fp32` (lerobot's `use_amp` off), `bf16` (`use_amp` on: bf16
+  samples/s and the ratio to the baseline: `fp32` (lerobot's `use_amp` off; the baseline's figures, not run
+  again, where the baseline trains in fp32), `bf16` (`use_amp` on: bf16
   autocast on the CPU), `mkldnn_bf16`
   (fp32 tensors, oneDNN's convolutions and matrix products computed in bf16: `torch.backends.mkldnn`),
   `channels_last` (the backbone's convolutions in NHWC), `bf16+channels_last`, `size=<W>` (the cameras rendered
@@ -313,7 +314,14 @@ def main(argv=None) -> int:
         if bench.raw["policy"].get("use_amp") and not bench.amp_here:
             print(f"  each lever but bf16 as kitbench trains here: {precision.why((precision.OFF_FLAG,))}")
         base = None
+        fp32_base = not (bench.raw["policy"].get("use_amp") and bench.amp_here)  # the baseline already runs in fp32
         for lever in levers:
+            if lever == "fp32" and fp32_base and base:  # the same path again: its figures are the baseline's
+                print(
+                    f"  {lever:<20} {base['update']:.3f} s/update  {base['samples_per_s']:6.1f} samples/s  1.00x "
+                    "(the baseline: it trains in fp32 here)"
+                )
+                continue
             result = _in_own_process(path, dataset, lever, args.steps, args.threads)
             if "skipped" in result:
                 print(f"  {lever:<20} {result['skipped']}")

@@ -66,8 +66,6 @@ def camera_data(tmp_path_factory):
 )
 def test_the_bench_times_the_parts_and_the_levers_of_a_real_update(needs_vulkan, camera_data, config, levers):
     data = camera_data()
-    if not precision.keep_cpu_amp():  # fp32 is this machine's baseline: the same path, a process the less
-        levers = ",".join(lever for lever in levers.split(",") if lever != "fp32")
     run = launch.run(
         [
             sys.executable,
