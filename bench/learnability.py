@@ -678,8 +678,9 @@ def print_cost(plan: Plan, reference_s: float) -> None:
     total = trainings * train_min + evaluations * eval_min
     print(
         f"cost: about {total / 60:.1f} h here: {train_min:.0f} min a training, {eval_min:.0f} min an evaluation "
-        f"(published {entry.train_minutes} and {'?' if entry.eval_minutes is None else entry.eval_minutes} min on a "
-        f"machine whose reference took {entry.reference_seconds} s); recordings not counted"
+        f"(published {entry.train_minutes} min at a reference of {entry.training_reference} s and "
+        f"{'?' if entry.eval_minutes is None else entry.eval_minutes} min at {entry.reference_seconds} s); recordings "
+        "not counted"
     )
     if pace.reference_misleads(plan.config):
         print(

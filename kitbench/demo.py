@@ -182,7 +182,7 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     """The camera config for this machine: the GPU's where torch sees CUDA, else the one trained on 2 CPU cores."""
     from kitbench.reproduce import load_published
     from kitbench.training.precision import amp_flags
-    from kitbench.training.reference import reference_seconds, scaled_minutes
+    from kitbench.training.reference import reference_seconds
     from kitbench.training.run import train_threads
 
     name = LOOP_CONFIG[cuda]
@@ -193,9 +193,9 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     suite = Path("eval/suites") / f"{entry.suites[0]}.toml"
     threads = train_threads(config, entry.threads)
     published = f"{entry.rate:.1%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
-    if entry.reference_seconds:
+    if entry.training_reference:
         here = reference_seconds(int(threads)) if reference_s is None else reference_s
-        minutes = f"about {scaled_minutes(entry.train_minutes, entry.reference_seconds, here):.0f} min of training here"
+        minutes = f"about {entry.train_minutes_here(here):.0f} min of training here"
     else:
         minutes = "its training time here not estimated"
     precision = amp_flags(config)

@@ -64,13 +64,16 @@ def per_seed(entry: Published) -> str:
 
 
 def machine(entry: Published) -> str:
-    if not entry.reference_seconds:
+    if not entry.training_reference:
         return f"{entry.device}; no reference workload"
     threads = entry.threads or 1
     step = "" if entry.step_seconds is None else f"; a step {entry.step_seconds:.2f} s"
+    # the scoring's minutes scale by their own reading where the training's minutes come from another run
+    scoring = entry.reference_seconds if entry.reference_seconds != entry.training_reference else None
+    apart = "" if scoring is None else f" as it trained, {scoring:.1f} s as it scored"
     return (
-        f"{entry.device}; reference {entry.reference_seconds:.1f} s on {threads} thread{'s' if threads > 1 else ''}"
-        f"{step}"
+        f"{entry.device}; reference {entry.training_reference:.1f} s on {threads} thread{'s' if threads > 1 else ''}"
+        f"{apart}{step}"
     )
 
 
@@ -173,11 +176,14 @@ def headline(published: Mapping[str, Published]) -> str:
     entry = published[HEADLINE_CONFIG]
     seeds, suites = len(entry.seeds), len(entry.suites)
     per_suite = entry.episodes // (seeds * suites)
+    # minutes are only half a figure without the machine's pace beside them (docs/results.md)
+    ref = entry.training_reference
+    reference = f" whose reference workload took {ref:.1f} s; `{COMMAND}` says what it takes on yours" if ref else ""
     return (
         f"This loop reaches {percent(entry.rate)} (95% CI {interval(entry)}) on LiftPegUpright from {entry.demos} "
         f"demonstrations, pooled over {seeds} {'held-out ' if entry.figure_seeds == 'heldout' else ''}training seeds "
         f"and {suites} suites of {per_suite} seeds, in "
-        f"{entry.train_minutes:.1f} minutes of training on {entry.device}."
+        f"{entry.train_minutes:.1f} minutes of training on {entry.device}{reference}."
     )
 
 

@@ -44,6 +44,7 @@ OPTIONAL = (
     "eval_minutes",
     "eval_batch_size",
     "reference_seconds",
+    "train_reference_seconds",
     "step_seconds",
     "threads",
     *HELDOUT_FIGURES,
@@ -70,6 +71,8 @@ class Published:
     eval_minutes: float | None = None
     eval_batch_size: int = 1
     reference_seconds: float | None = None  # kitbench.training.reference on that machine, on the training's threads
+    # the reference read around the training that train_minutes come from, where it is not the scoring's
+    train_reference_seconds: float | None = None
     step_seconds: float | None = None  # a step of the published training (kitbench.training.pace, from its log)
     threads: int | None = None  # torch's threads in the published trainings (default: the cores workers leave)
     seed_success: tuple[int, ...] = ()  # each training seed's successes over every suite, and its episodes
@@ -115,6 +118,11 @@ class Published:
         """The selection seeds' pooled figure on the validation suite, where the row keeps it."""
         return sum(self.selection_success) / sum(self.selection_episodes) if self.selection_success else None
 
+    @property
+    def training_reference(self) -> float | None:
+        """The reference workload's seconds that go with train_minutes (and step_seconds)."""
+        return self.train_reference_seconds or self.reference_seconds
+
     def train_minutes_here(self, here: float, steps: int | None = None, step_here: float | None = None) -> float | None:
         """The published training minutes on this machine for `steps` updates (default: the published run's): scaled
         by a step's seconds here (`step_here`, kitbench.training.pace) where the row keeps its own, else by the
@@ -122,9 +130,9 @@ class Published:
         minutes = self.train_minutes * (steps / self.steps if steps else 1.0)
         if step_here and self.step_seconds:
             return scaled_minutes(minutes, self.step_seconds, step_here)
-        if not self.reference_seconds:
+        if not self.training_reference:
             return None
-        return scaled_minutes(minutes, self.reference_seconds, here)
+        return scaled_minutes(minutes, self.training_reference, here)
 
     def eval_minutes_here(self, here: float) -> float | None:
         """One suite's published scoring minutes on a machine whose reference workload took `here` s."""
@@ -139,6 +147,16 @@ def _seeds(where: str, key: str, value: object) -> tuple[int, ...]:
     if len(set(value)) != len(value):
         raise KitbenchError(f"{where}: {key} {value} repeats a seed")
     return tuple(value)
+
+
+def _time(where: str, entry: dict, key: str) -> float | None:
+    """A row's minutes or seconds: a positive number, or None where the row leaves it out."""
+    if key not in entry:
+        return None
+    value = entry[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+        raise KitbenchError(f"{where}: {key} is {value!r}; give a positive number")
+    return float(value)
 
 
 def parse_row(name: str, entry: dict, where: str) -> Published:
@@ -175,12 +193,13 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         suites=tuple(entry["suites"]),
         success=int(entry["success"]),
         episodes=int(entry["episodes"]),
-        train_minutes=float(entry["train_minutes"]),
+        train_minutes=_time(where, entry, "train_minutes"),
         device=str(entry["device"]),
-        eval_minutes=None if "eval_minutes" not in entry else float(entry["eval_minutes"]),
+        eval_minutes=_time(where, entry, "eval_minutes"),
         eval_batch_size=int(entry.get("eval_batch_size", 1)),
-        reference_seconds=None if "reference_seconds" not in entry else float(entry["reference_seconds"]),
-        step_seconds=None if "step_seconds" not in entry else float(entry["step_seconds"]),
+        reference_seconds=_time(where, entry, "reference_seconds"),
+        train_reference_seconds=_time(where, entry, "train_reference_seconds"),
+        step_seconds=_time(where, entry, "step_seconds"),
         threads=None if "threads" not in entry else int(entry["threads"]),
         seed_success=tuple(int(s) for s in entry.get("seed_success", ())),
         seed_episodes=tuple(int(n) for n in entry.get("seed_episodes", ())),

@@ -176,12 +176,12 @@ def expectation(
     if step:  # no published step to scale by: the steps alone, and what the reference workload says beside them
         return (
             f"expected training time: its {updates} steps alone take about {updates * step / 60:.1f} min here "
-            f"({timed}; {published} came without a step time; by the reference workload, {entry.reference_seconds:.1f} "
-            f"s there and {here:.1f} s here: about {minutes:.1f} min)"
+            f"({timed}; {published} came without a step time; by the reference workload, "
+            f"{entry.training_reference:.1f} s there and {here:.1f} s here: about {minutes:.1f} min)"
         )
     return (
         f"expected training time: about {minutes:.1f} min here for {updates} steps ({published}, whose reference "
-        f"workload took {entry.reference_seconds:.1f} s; here {here:.1f} s on {threads} thread(s))"
+        f"workload took {entry.training_reference:.1f} s; here {here:.1f} s on {threads} thread(s))"
     )
 
 

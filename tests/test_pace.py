@@ -52,8 +52,25 @@ def test_a_row_with_its_step_time_scales_by_the_step_here_and_says_so():
     )
     # without a step time here, or without one published, the reference workload scales it
     by_reference = 2 * row.train_minutes
-    assert timed.train_minutes_here(2 * row.reference_seconds) == pytest.approx(by_reference)
-    assert row.train_minutes_here(2 * row.reference_seconds, None, 0.10) == pytest.approx(by_reference)
+    assert timed.train_minutes_here(2 * row.training_reference) == pytest.approx(by_reference)
+    assert row.train_minutes_here(2 * row.training_reference, None, 0.10) == pytest.approx(by_reference)
+
+
+def test_training_and_scoring_minutes_from_different_runs_scale_by_their_own_reference():
+    from kitbench.figures import machine
+
+    row = dataclasses.replace(
+        load_published()["act_assembling_kits_state"], reference_seconds=2.0, train_reference_seconds=4.0
+    )
+    assert row.training_reference == 4.0
+    # a machine whose reference reads 8.0 s: twice the training's reading, four times the scoring's
+    assert row.train_minutes_here(8.0) == pytest.approx(2 * row.train_minutes)
+    assert row.eval_minutes_here(8.0) == pytest.approx(4 * row.eval_minutes)
+    assert "reference 4.0 s on 1 thread as it trained, 2.0 s as it scored" in machine(row)
+    # one run for both: one reading, said once, scaling both
+    same = dataclasses.replace(row, train_reference_seconds=None)
+    assert same.train_minutes_here(8.0) == pytest.approx(4 * row.train_minutes)
+    assert "reference 2.0 s on 1 thread;" in machine(same) and "as it scored" not in machine(same)
 
 
 def test_a_camera_config_without_a_published_step_is_timed_and_its_steps_alone_are_said():

@@ -130,6 +130,9 @@ def _row(**changes: str | None) -> str:
         ({"seed_success": "[183, 368]"}, "seed_success and seed_episodes give 2 and 3 figures for the 3 selection"),
         ({"selection_seeds": "[1000, 1000, 3000]"}, "selection_seeds [1000, 1000, 3000] repeats a seed"),
         ({"interval": "[0.89, 0.94]"}, "unknown key 'interval'; valid keys: recipe, demos"),
+        ({"train_reference_seconds": "0"}, "train_reference_seconds is 0; give a positive number"),
+        ({"step_seconds": '"fast"'}, "step_seconds is 'fast'; give a positive number"),
+        ({"train_minutes": "-13.5"}, "train_minutes is -13.5; give a positive number"),
         (
             {"heldout_success": "[180, 170]", "heldout_episodes": "[200]"},
             "heldout_success and heldout_episodes give 2 and 1 figures; give one each for the first held-out seeds",
@@ -214,7 +217,7 @@ def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_
     from kitbench.training import run
 
     row = load_published()[CONFIG]
-    slow = 2 * row.reference_seconds
+    slow = 2 * row.training_reference
     planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=row.steps // 2))
     # a finished training of this very request: train_policy reuses it, and nothing runs lerobot-train
     checkpoint = planned.training.train_dir / "checkpoints" / "last" / "pretrained_model"
@@ -238,7 +241,7 @@ def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_
     assert said[0] == (
         f"expected training time: about {row.train_minutes:.1f} min here for {row.steps // 2} steps (published "
         f"{row.train_minutes:.1f} min for {row.steps} on {row.device}, whose reference workload took "
-        f"{row.reference_seconds:.1f} s; here {slow:.1f} s on 1 thread(s))"
+        f"{row.training_reference:.1f} s; here {slow:.1f} s on 1 thread(s))"
     )
     assert said[1].startswith("training: OMP_NUM_THREADS=1 ")
 
