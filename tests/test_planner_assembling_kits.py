@@ -251,3 +251,27 @@ def test_one_grip_counts_the_episodes_near_the_commonest_yaw_in_the_hand_across_
     assert one_grip(at(1.0, 20.0, 45.0)) == (1, 3)
     assert one_grip(at(0.0, 0.0, period=0.0)) == (2, 2)  # a disc sits alike at every yaw
     assert one_grip([Episode(0, 3, False, 200, "never grasped", None)]) == (0, 0)
+
+
+@pytest.mark.parametrize("seed", [3, 15])  # a chevron and an L-block, jammed at the slot by the plans at the limits
+def test_in_measured_end_effector_deltas_the_expert_plans_what_the_hand_follows(seed):
+    """In `pd_ee_delta_pose` each action leads the measured hand by at most 0.1 rad, of which ManiSkill's drives
+    cover part in a step: planned at the joint limits the hand fell behind, reached the slot still turning and
+    jammed the shape there; each joint kept to `ee_delta_tracking` of the bound a step, it seats it."""
+    from kitbench.planning.planner import MEASURED_DELTA_TRACKING
+    from kitbench.policies.joint_targets import joint_target_to_action
+
+    env = gym.make("kitbench/AssemblingKits-v1", control_mode="pd_ee_delta_pose")
+    outcomes = {}
+    for tracking in (None, MEASURED_DELTA_TRACKING):
+        obs, info = env.reset(seed=seed)
+        planner = env.unwrapped.make_expert({"ee_delta_tracking": tracking})
+        bound = 0.1 / planner.dt  # rad/s: the action bound a step
+        assert (planner.max_velocity <= MEASURED_DELTA_TRACKING * bound * (1 + 1e-6)).all() == (tracking is not None)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            target = planner.act(obs)
+            obs, _, terminated, truncated, info = env.step(joint_target_to_action(env, target[:-1], float(target[-1])))
+        outcomes[tracking] = (bool(info["success"]), bool(info["in_slot"]))
+    env.close()
+    assert outcomes[None] == (False, False) and outcomes[MEASURED_DELTA_TRACKING][0], outcomes

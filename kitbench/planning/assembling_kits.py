@@ -66,7 +66,7 @@ from kitbench.planning.kit_grasps import (
     signed_yaw_options,
 )
 from kitbench.planning.phases import CLOSED, OPEN, Step, hold, steps_from
-from kitbench.planning.planner import DRIVE_LEAD, PhasePlanner
+from kitbench.planning.planner import DRIVE_LEAD, MEASURED_DELTA_TRACKING, PhasePlanner
 from kitbench.planning.poses import HAND_DOWN, make_pose, rot_z
 from kitbench.tasks.assembling_kits import yaw_error
 
@@ -98,6 +98,10 @@ class AssemblingKitsPlannerConfig:
     grip_squeeze: float | None = 0.005
     speed_factor: float = 1.0
     drive_lead: float = DRIVE_LEAD  # the commanded joints lead the plan by this share of the drives' lag
+    # In the measured end-effector delta modes, each joint moves at most this share of the action bound a step
+    # (None: at the joint limits): faster, the hand falls behind its plan and the shape reaches its slot still
+    # turning (docs/fidelity.md, "The experts under ManiSkill's gains").
+    ee_delta_tracking: float | None = MEASURED_DELTA_TRACKING
     max_opening: float = 0.07  # m, the widest grasp the planner uses (the Panda opens 8 cm)
     open_command: float = OPEN  # the gripper command of an open hand (1: fully open)
     # Whether the planner counts the hand's turn by the arm's swing about its base against the wrist's limits: a

@@ -66,8 +66,9 @@ class PhasePlanner(ABC):
     `grasp_attempts` and `failure` (None, or why the expert gave up) let benchmarks sort failures.
 
     `config` (default `default_config()`) is a frozen dataclass of the expert's tunables; the base class reads
-    its `speed_factor`, the fraction of the robot's joint velocity and acceleration limits plans may use, and its
-    `drive_lead` where it has one (`DRIVE_LEAD` otherwise).
+    its `speed_factor`, the fraction of the robot's joint velocity and acceleration limits plans may use, its
+    `drive_lead` where it has one (`DRIVE_LEAD` otherwise), and its `ee_delta_tracking` where it has one (None
+    otherwise: plans in the measured end-effector delta modes at the joint limits).
     """
 
     # Every phase name the expert plays, in the order an episode meets them, "failed" last (`_fail`): what
@@ -86,6 +87,12 @@ class PhasePlanner(ABC):
         if controller.frame == JOINTS and controller.delta:  # their actions move a joint at most this far per step
             fraction = 0.98 if controller.target_delta else MEASURED_DELTA_TRACKING
             step_limit = controller.physical_space.high[: self.n_arm].astype(np.float64) * fraction
+            self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
+        tracking = getattr(self.cfg, "ee_delta_tracking", None)
+        if controller.frame != JOINTS and controller.delta and not controller.target_delta and tracking is not None:
+            # measured TCP deltas lead the hand by at most the action bound (0.1 m, 0.1 rad) a step, and the drives
+            # cover part of it: each joint kept to that share of the bound a step, as in the joint-delta modes
+            step_limit = tracking * float(np.max(controller.physical_space.high[: len(controller.tcp_names)]))
             self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
         kinematics = ArmKinematics(spec)
         kinematics.set_body(self.env.robot.body_qpos())
