@@ -275,3 +275,14 @@ def test_in_measured_end_effector_deltas_the_expert_plans_what_the_hand_follows(
         outcomes[tracking] = (bool(info["success"]), bool(info["in_slot"]))
     env.close()
     assert outcomes[None] == (False, False) and outcomes[MEASURED_DELTA_TRACKING][0], outcomes
+
+
+@pytest.mark.parametrize("bad", [0, -0.4, 1.5])
+def test_a_tracking_share_outside_the_bound_is_refused_in_one_line(bad):
+    from kitbench.errors import KitbenchError
+
+    env = gym.make("kitbench/AssemblingKits-v1", control_mode="pd_ee_delta_pose")
+    env.reset(seed=0)
+    with pytest.raises(KitbenchError, match=rf"ee_delta_tracking must be within \(0, 1\].*got {float(bad)}$"):
+        env.unwrapped.make_expert({"ee_delta_tracking": bad})
+    env.close()

@@ -89,6 +89,11 @@ class PhasePlanner(ABC):
             step_limit = controller.physical_space.high[: self.n_arm].astype(np.float64) * fraction
             self.max_velocity = np.minimum(self.max_velocity, step_limit / self.dt)
         tracking = getattr(self.cfg, "ee_delta_tracking", None)
+        if tracking is not None and not 0.0 < tracking <= 1.0:
+            raise KitbenchError(
+                f"expert option ee_delta_tracking must be within (0, 1] of the action bound a step (null: plans at "
+                f"the joint limits), got {tracking!r}"
+            )
         if controller.frame != JOINTS and controller.delta and not controller.target_delta and tracking is not None:
             # measured TCP deltas lead the hand by at most the action bound (0.1 m, 0.1 rad) a step, and the drives
             # cover part of it: each joint kept to that share of the bound a step, as in the joint-delta modes
