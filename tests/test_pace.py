@@ -80,10 +80,10 @@ def test_a_camera_config_without_a_published_step_is_timed_and_its_steps_alone_a
     assert reference_misleads(ROOT / "policies" / "act_lift_peg_upright_rgb_96_cpu.json")
     assert not reference_misleads(ROOT / "policies" / "act_lift_peg_upright_state.json")
     row = dataclasses.replace(load_published()["act_lift_peg_upright_so101_rgb_96_cpu"], step_seconds=None)
-    by_reference = row.train_minutes * 6.0 / row.reference_seconds
+    by_reference = row.train_minutes * 6.0 / row.training_reference
     assert expectation(row, 6.0, 2, None, 2.0) == (
         f"expected training time: its {row.steps} steps alone take about {row.steps * 2.0 / 60:.1f} min here (a step "
         f"2.000 s here, lerobot-train's own timing on 2 thread(s); published {row.train_minutes:.1f} min for "
         f"{row.steps} on {row.device} came without a step time; by the reference workload, "
-        f"{row.reference_seconds:.1f} s there and 6.0 s here: about {by_reference:.1f} min)"
+        f"{row.training_reference:.1f} s there and 6.0 s here: about {by_reference:.1f} min)"
     )
