@@ -159,6 +159,13 @@ def _time(where: str, entry: dict, key: str) -> float | None:
     return float(value)
 
 
+def _required_time(where: str, entry: dict, key: str) -> float:
+    value = _time(where, entry, key)
+    if value is None:
+        raise KitbenchError(f"{where} lacks {key}")
+    return value
+
+
 def parse_row(name: str, entry: dict, where: str) -> Published:
     """One row, checked: every required key, no unknown one, the seed sets disjoint, a figure for each seed."""
     where = f"{where}: [{name}]"
@@ -193,7 +200,7 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         suites=tuple(entry["suites"]),
         success=int(entry["success"]),
         episodes=int(entry["episodes"]),
-        train_minutes=_time(where, entry, "train_minutes"),
+        train_minutes=_required_time(where, entry, "train_minutes"),
         device=str(entry["device"]),
         eval_minutes=_time(where, entry, "eval_minutes"),
         eval_batch_size=int(entry.get("eval_batch_size", 1)),
