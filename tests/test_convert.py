@@ -191,7 +191,7 @@ def test_a_diverged_episode_between_stored_ones_leaves_a_dataset_that_passes_the
 
 
 def test_a_recording_of_successes_only_converts_into_a_dataset_that_passes_the_training_checks(tmp_path):
-    """An `only_success` source skips the seeds its expert failed (AssemblingKits' seed 3 with its recipes' noise);
+    """An `only_success` source skips the seeds its expert failed (seed 3: `kits_successes_only`'s expert);
     the conversion holds the same seeds, gap included, and says it holds successes only, so that the checks
     lerobot-train runs through the plugin accept it (they refused it, seeds 0..3 asked against 0..4 held)."""
     from kitbench.integrity import check_dataset
