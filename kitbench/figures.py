@@ -83,11 +83,12 @@ def figure_from(entry: Published) -> str:
         return f"{entry.figure_seeds} seeds"
     trained = zip(entry.selection_seeds, entry.selection_success, entry.selection_episodes, strict=True)
     cells = ", ".join(f"{seed}: {percent(s / n)}" for seed, s, n in trained)
-    below = "; above the held-out figure's interval" if entry.selection_rate > entry.interval[1] else ""
+    low, high = entry.interval
+    side = "above" if entry.selection_rate > high else "below" if entry.selection_rate < low else ""
+    outside = f"; {side} the held-out figure's interval" if side else ""
     where = "the test suites, before the split" if entry.selection_on_test_suites else f"`{entry.selection_suite}`"
-    return (
-        f"held-out seeds; chosen at selection seeds {cells} on {where} (pooled {percent(entry.selection_rate)}{below})"
-    )
+    pooled = f"pooled {percent(entry.selection_rate)}{outside}"
+    return f"held-out seeds; chosen at selection seeds {cells} on {where} ({pooled})"
 
 
 def heldout(entry: Published) -> str:

@@ -189,8 +189,13 @@ def test_a_heldout_figure_shows_the_selection_figures_beside_it(tmp_path):
     assert "selection seeds 1000: 99.0%, 2000: 98.0%, 3000: 97.0% on `lift_peg_upright_val` (pooled 98.0%" in shown
     # the selection figure above the held-out figure's interval is said so
     assert entry.interval[1] < 0.98 and "above the held-out figure's interval" in shown
+    # below it too (a figure the held-out seeds beat); inside it, neither
     path.write_text(_row(**{**HELDOUT_FIGURE, **below, "selection_success": "[50, 50, 50]"}))
-    assert "above" not in figures.figure_from(load_published(path)[CONFIG])
+    shown = figures.figure_from(load_published(path)[CONFIG])
+    assert "below the held-out figure's interval" in shown and "above" not in shown
+    path.write_text(_row(**{**HELDOUT_FIGURE, **below, "selection_success": "[92, 91, 92]"}))
+    shown = figures.figure_from(load_published(path)[CONFIG])
+    assert "held-out figure's interval" not in shown
 
 
 def test_a_row_chosen_before_the_split_shows_its_selection_figures_on_the_test_suites(tmp_path):
