@@ -73,6 +73,7 @@ def test_the_heldout_seeds_are_the_documented_draw_and_disjoint_from_the_selecti
         figure_seeds="selection",
         success=563,
         episodes=600,
+        seed_success=(190, 189, 184),
         heldout_success=(177,),
         heldout_episodes=(200,),
     )
