@@ -15,7 +15,8 @@ figure's own interval, which is narrower than any single run's. Before the train
 training minutes are scaled to this machine and printed as what to expect: by the config's own steps timed here
 (`kitbench.training.pace`: lerobot-train for a few steps) where the published row keeps its step time, else by a
 fixed reference workload (`kitbench.training.reference`) timed here; the workload is timed again as the training
-ends, and the training's own step time is read from its log.
+ends, and the training's own step time is read from its log. A reading taken while another process held the cores
+says little of the machine; the run says so where it happened.
 
 Each training seed keeps its checkpoint, its reports and its verdict (`reproduce.json`) in `<out>/seed<N>/`,
 beside the recording they share (`<out>/data`).
@@ -36,7 +37,7 @@ from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError, check_choice
 from kitbench.published import PUBLISHED, Published, load_published
 from kitbench.shipped import ROOT
-from kitbench.training.reference import reference_seconds
+from kitbench.training.reference import BUSY_SHARE, Reading, read
 
 if TYPE_CHECKING:  # imported where used: the recorder and the training runner load the simulator's stack
     from kitbench.recording.config import RecordConfig
@@ -44,8 +45,8 @@ if TYPE_CHECKING:  # imported where used: the recorder and the training runner l
 
 __all__ = ["PUBLISHED", "Published", "ReproduceConfig", "check", "load_published", "reproduce"]
 THREADS_VAR = "OMP_NUM_THREADS"
-# Seconds of kitbench.training.reference's workload on N torch threads: the parameter tests measure through.
-Reference = Callable[[int], float]
+# kitbench.training.reference's workload timed on N torch threads: the parameter tests measure through.
+Reference = Callable[[int], Reading]
 
 
 @dataclass
@@ -185,6 +186,20 @@ def expectation(
     )
 
 
+def busy_warning(reading: Reading, threads: int, when: str) -> str:
+    """One line saying that another process held the cores while the reference workload was timed."""
+    return (
+        f"the machine was busy {when}: the reference workload had {reading.share:.0%} of its {threads} thread(s)' "
+        f"time (about 100% alone: another process held the cores), so its {reading.seconds:.1f} s say little of "
+        "this machine and minutes scaled by it read long"
+    )
+
+
+def _reading(seconds: float, share: float | None) -> str:
+    """A reference reading as the verdict says it, marked where another process held the cores (unknown: not)."""
+    return f"{seconds:.1f} s" + (" (busy)" if share is not None and share < BUSY_SHARE else "")
+
+
 def _train_failed(exc: CommandFailed) -> KitbenchError:
     """A failed lerobot-train (the training or its timed steps) as one error with its log's tail."""
     from kitbench.training import run
@@ -192,7 +207,7 @@ def _train_failed(exc: CommandFailed) -> KitbenchError:
     return KitbenchError(f"lerobot-train failed ({exc}); its log: {exc.log}\n{run.log_tail(exc.log, 15)}")
 
 
-def train_policy(planned: Run, say=print, measure: Reference = reference_seconds) -> tuple[dict, float]:
+def train_policy(planned: Run, say=print, measure: Reference = read) -> tuple[dict, float]:
     """Time the reference workload (and, where the published row keeps its step time, the config's own steps), say
     what the training should take here, then train (or reuse the checkpoint the same request trained); what
     `run.train` returns, with the step times before and during the training, and the reference seconds."""
@@ -200,7 +215,10 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
 
     training = planned.training
     threads = int(training.threads)
-    here = measure(threads)
+    reading = measure(threads)
+    here = reading.seconds
+    if reading.busy:
+        say(busy_warning(reading, threads, "before the training"))
     step = None
     request = training.request()
     reused = run.finished_request(planned.policy_dir) == request
@@ -226,6 +244,7 @@ def train_policy(planned: Run, say=print, measure: Reference = reference_seconds
         **trained,
         "step_seconds": pace.step_seconds(planned.policy_dir / "train.log"),
         "probe_step_seconds": step,
+        "reference_share": reading.share,
     }
     return trained, here
 
@@ -295,8 +314,9 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
     timed = "" if before is None else f" ({before:.3f} s timed before it)"
     steps = "" if step is None else f"a step {step:.3f} s{timed}; "
     say(
-        f"training: {minutes:.1f} min for {trained['steps']} steps ({steps}reference workload {here:.1f} s before it, "
-        f"{after:.1f} s after{scaled})"
+        f"training: {minutes:.1f} min for {trained['steps']} steps ({steps}reference workload "
+        f"{_reading(here, trained.get('reference_share'))} before it, "
+        f"{_reading(after, trained.get('reference_after_share'))} after{scaled})"
     )
     result = {
         "config": config.config,
@@ -309,6 +329,8 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
         "train_minutes": minutes,
         "reference_seconds": here,
         "reference_seconds_after_training": after,
+        "reference_share": trained.get("reference_share"),
+        "reference_share_after_training": trained.get("reference_after_share"),
         "step_seconds": trained["step_seconds"],
         "probe_step_seconds": trained["probe_step_seconds"],
         "train_command": trained["command"],
@@ -317,9 +339,9 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
     return 0 if inside else 3
 
 
-def reproduce(config: ReproduceConfig, say=print, measure: Reference = reference_seconds) -> int:
+def reproduce(config: ReproduceConfig, say=print, measure: Reference = read) -> int:
     """Record, train, score and judge: 0 when the run lands where the published runs predict a new training seed
-    lands, 3 when it does not. `measure`: the reference workload's seconds on N threads."""
+    lands, 3 when it does not. `measure`: the reference workload timed on N threads."""
     planned = plan(config)
     status = record_data(planned, say)
     if status != 0:

@@ -17,6 +17,7 @@ import pytest
 from kitbench import figures
 from kitbench.errors import KitbenchError
 from kitbench.published import HELDOUT_FIGURES, PUBLISHED, SELECTION_FIGURES, load_published
+from kitbench.training.reference import Reading
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = "act_lift_peg_upright_state"
@@ -247,9 +248,9 @@ def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_
     said: list[str] = []
     threads: list[int] = []
 
-    def twice_as_slow(n: int) -> float:  # this machine's reference workload: twice the published one's
+    def twice_as_slow(n: int) -> Reading:  # this machine's reference workload: twice the published one's
         threads.append(n)
-        return slow
+        return Reading(slow, 0.97)
 
     result, here = train_policy(planned, said.append, measure=twice_as_slow)
     assert result["reused"] is True and here == slow and threads == [1]  # the state config's published thread
@@ -261,6 +262,67 @@ def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_
         f"{row.training_reference:.1f} s; here {slow:.1f} s on 1 thread(s))"
     )
     assert said[1].startswith("training: OMP_NUM_THREADS=1 ")
+
+
+def test_reproduce_says_when_the_machine_was_busy_as_the_reference_workload_was_timed(tmp_path):
+    """Another process on the same cores stalls torch's threads (docs/training.md, "A busy machine"):
+    the reading is said to be busy before the minutes it scales, and marked in the verdict and reproduce.json."""
+    from kitbench.reproduce import ReproduceConfig, plan, train_policy, verdict
+    from kitbench.training import run
+
+    row = load_published()[CONFIG]
+    planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=row.steps))
+    checkpoint = planned.training.train_dir / "checkpoints" / "last" / "pretrained_model"
+    checkpoint.mkdir(parents=True)
+    (checkpoint / "model.safetensors").write_bytes(b"weights")
+    trained = {
+        "seconds": 60.0,
+        "steps": row.steps,
+        "reference_after": 1.6,
+        "reference_after_share": 0.98,
+        "command": [],
+    }
+    (planned.policy_dir / run.TRAIN_STAMP).write_text(
+        json.dumps({"request": planned.training.request(), "trained": trained})
+    )
+    said: list[str] = []
+    result, here = train_policy(planned, said.append, measure=lambda n: Reading(37.5, 0.5))
+    assert said[0] == (
+        "the machine was busy before the training: the reference workload had 50% of its 1 thread(s)' time (about "
+        "100% alone: another process held the cores), so its 37.5 s say little of this machine and minutes scaled "
+        "by it read long"
+    )
+    assert said[1].startswith("expected training time: about ") and "here 37.5 s on 1 thread(s)" in said[1]
+    said.clear()
+    verdict(planned, row.success // 3, row.episodes // 3, {**result, "step_seconds": None}, here, said.append)
+    assert "reference workload 37.5 s (busy) before it, 1.6 s after;" in said[-1]
+    stamped = json.loads(planned.result.read_text())
+    assert (stamped["reference_share"], stamped["reference_share_after_training"]) == (0.5, 0.98)
+    # a quiet reading is not marked
+    result, _ = train_policy(planned, said.append, measure=lambda n: Reading(1.6, 0.97))
+    said.clear()
+    verdict(planned, row.success // 3, row.episodes // 3, {**result, "step_seconds": None}, 1.6, said.append)
+    assert "reference workload 1.6 s before it, 1.6 s after;" in said[-1]
+
+
+def test_the_reference_workload_beside_busy_processes_reads_busy(monkeypatch):
+    """Processes spinning on every core (three runnable for each): the workload gets a share of its threads' time
+    far under what it has alone, and says so."""
+    import os
+
+    from kitbench.training import reference
+
+    monkeypatch.setattr(reference, "WARMUP", 1)
+    monkeypatch.setattr(reference, "STEPS", 3)
+    cores = os.cpu_count() or 1
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(3 * cores)]
+    try:
+        reading = reference.read(min(2, cores))
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
+    assert reading.busy and reading.share < 0.5 and reading.seconds > 0
 
 
 def test_a_row_without_a_reference_workload_is_not_scaled():

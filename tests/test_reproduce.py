@@ -15,6 +15,7 @@ import pytest
 from kitbench import cli
 from kitbench.recording.recorder import load_recipe
 from kitbench.reproduce import PUBLISHED, load_published
+from kitbench.training.reference import Reading
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = "act_lift_peg_upright_state"
@@ -168,7 +169,7 @@ def _trained_here(monkeypatch) -> list[list[str]]:
         return 2.0
 
     monkeypatch.setattr(run, "run_logged", fake_train)
-    monkeypatch.setattr(run, "reference_seconds", lambda threads: 1.0)
+    monkeypatch.setattr(run, "read", lambda threads: Reading(1.0, 1.0))
     return commands
 
 

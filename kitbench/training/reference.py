@@ -5,18 +5,42 @@ made of, at its sizes: a 2-layer transformer encoder of width 256 (4 heads, feed
 on a batch of 32, forward, backward and an AdamW step, `STEPS` times on `threads` torch threads, from a fixed seed.
 Its seconds (`reference_seconds`) travel with every published training time, so a time measured elsewhere reads as
 `minutes x here / there` (`scaled_minutes`).
+
+Another process on the same cores makes the reading meaningless, not just slower: torch's threads wait for each other
+at every operation, and one of them descheduled stalls the rest (docs/training.md, "A busy machine"). `read` says
+so: this process's CPU time over its threads' wall time while timed (`share`), about 1 alone, falls where another
+process takes the cores from its threads.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 STEPS = 60
 WARMUP = 5
+# Below this share of its threads' time the process did not have the cores to itself.
+BUSY_SHARE = 0.75
+
+
+@dataclass(frozen=True)
+class Reading:
+    seconds: float
+    share: float  # CPU seconds over threads x wall seconds while timed: ~1 alone
+
+    @property
+    def busy(self) -> bool:
+        """Whether another process held the cores while the workload was timed (the seconds then read long)."""
+        return self.share < BUSY_SHARE
 
 
 def reference_seconds(threads: int = 1) -> float:
     """Seconds for the fixed workload on `threads` torch threads (the threads are restored after)."""
+    return read(threads).seconds
+
+
+def read(threads: int = 1) -> Reading:
+    """The fixed workload timed on `threads` torch threads, with the share of those threads' time it had."""
     import torch
 
     previous = torch.get_num_threads()
@@ -44,10 +68,11 @@ def reference_seconds(threads: int = 1) -> float:
 
         for _ in range(WARMUP):
             update()
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         for _ in range(STEPS):
             update()
-        return time.perf_counter() - started
+        seconds = time.perf_counter() - started
+        return Reading(seconds, (time.process_time() - cpu) / (seconds * threads))
     finally:
         torch.set_num_threads(previous)
 

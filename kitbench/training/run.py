@@ -30,7 +30,7 @@ from pathlib import Path
 
 from kitbench.errors import KitbenchError
 from kitbench.training.precision import amp_flags
-from kitbench.training.reference import reference_seconds
+from kitbench.training.reference import read
 
 BIN = Path(sys.executable).parent  # the venv's console scripts, whichever way Python was started
 THREADS_VAR = "OMP_NUM_THREADS"
@@ -296,7 +296,7 @@ def train(training: Training, *, progress: bool = False, overwrite: bool = False
         if follow is not None:
             follow.close()
     # measured again as the training ends: a machine that slowed down during a long training shows it here
-    reference_after = reference_seconds(int(threads))
+    after = read(int(threads))
     train_config = json.loads((checkpoint / "train_config.json").read_text())
     params, source = count_parameters(log, checkpoint)
     trained = {
@@ -311,7 +311,8 @@ def train(training: Training, *, progress: bool = False, overwrite: bool = False
         "params": params,
         "params_source": source,
         "seed": train_config.get("seed"),
-        "reference_after": reference_after,
+        "reference_after": after.seconds,
+        "reference_after_share": after.share,
     }
     stamp.write_text(json.dumps({"request": request, "trained": {**trained, "dir": str(train_dir)}}, indent=1) + "\n")
     return {**trained, "reused": False, "stamp": stamp}
