@@ -186,12 +186,12 @@ def expectation(
     )
 
 
-def busy_warning(reading: Reading, threads: int, when: str) -> str:
-    """One line saying that another process held the cores while the reference workload was timed."""
+def busy_warning(reading: Reading, threads: int) -> str:
+    """One line saying that another process held the cores while the reference workload was timed before training."""
     return (
-        f"the machine was busy {when}: the reference workload had {reading.share:.0%} of its {threads} thread(s)' "
-        f"time (about 100% alone: another process held the cores), so its {reading.seconds:.1f} s say little of "
-        "this machine and minutes scaled by it read long"
+        f"the machine was busy before the training: the reference workload had {reading.share:.0%} of its {threads} "
+        f"thread(s)' time (about 100% alone: another process held the cores), so its {reading.seconds:.1f} s say "
+        "little of this machine and minutes scaled by it read long"
     )
 
 
@@ -218,7 +218,7 @@ def train_policy(planned: Run, say=print, measure: Reference = read) -> tuple[di
     reading = measure(threads)
     here = reading.seconds
     if reading.busy:
-        say(busy_warning(reading, threads, "before the training"))
+        say(busy_warning(reading, threads))
     step = None
     request = training.request()
     reused = run.finished_request(planned.policy_dir) == request
