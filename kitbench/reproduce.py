@@ -37,7 +37,7 @@ from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError, check_choice
 from kitbench.published import PUBLISHED, Published, load_published
 from kitbench.shipped import ROOT
-from kitbench.training.reference import BUSY_SHARE, Reading, read
+from kitbench.training.reference import Reading, read
 
 if TYPE_CHECKING:  # imported where used: the recorder and the training runner load the simulator's stack
     from kitbench.recording.config import RecordConfig
@@ -197,7 +197,7 @@ def busy_warning(reading: Reading, threads: int) -> str:
 
 def _reading(seconds: float, share: float | None) -> str:
     """A reference reading as the verdict says it, marked where another process held the cores (unknown: not)."""
-    return f"{seconds:.1f} s" + (" (busy)" if share is not None and share < BUSY_SHARE else "")
+    return f"{seconds:.1f} s" + (" (busy)" if share is not None and Reading(seconds, share).busy else "")
 
 
 def _train_failed(exc: CommandFailed) -> KitbenchError:

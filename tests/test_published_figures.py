@@ -306,8 +306,8 @@ def test_reproduce_says_when_the_machine_was_busy_as_the_reference_workload_was_
 
 
 def test_the_reference_workload_beside_busy_processes_reads_busy(monkeypatch):
-    """Processes spinning on every core (three runnable for each): the workload gets a share of its threads' time
-    far under what it has alone, and says so."""
+    """Processes spinning on every core (three runnable for each): the workload gets a share of its thread's time
+    far under what it has alone, and says so. On 1 thread: on 2 the stall itself costs the test 20 s more."""
     import os
 
     from kitbench.training import reference
@@ -315,9 +315,12 @@ def test_the_reference_workload_beside_busy_processes_reads_busy(monkeypatch):
     monkeypatch.setattr(reference, "WARMUP", 1)
     monkeypatch.setattr(reference, "STEPS", 3)
     cores = os.cpu_count() or 1
-    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(3 * cores)]
+    spin = "print(flush=True)\nwhile True: pass"  # says it runs, then spins
+    spinners = [subprocess.Popen([sys.executable, "-c", spin], stdout=subprocess.PIPE) for _ in range(3 * cores)]
     try:
-        reading = reference.read(min(2, cores))
+        for spinner in spinners:  # every one spinning before the workload is timed
+            assert spinner.stdout is not None and spinner.stdout.readline() == b"\n"
+        reading = reference.read(1)
     finally:
         for spinner in spinners:
             spinner.kill()
