@@ -70,6 +70,9 @@ class ReproduceConfig:
     published: Path = setting(PUBLISHED, show_default=False)
     # Keep a checkpoint every N training steps as well as the last (lerobot-train --save_freq), for `kitbench select`.
     save_every: int | None = setting(None, check=optional(positive_int))
+    # Train a config made for a GPU on this CPU: its model, data, batch and steps, with bf16 autocast where the CPU
+    # computes bf16 and one loader worker (a GPU config is refused where torch sees no CUDA without it).
+    cpu: bool = setting(False)
     # Replace a finished training of another request (steps, seed, threads, data) in --out.
     overwrite: bool = setting(False)
 
@@ -125,7 +128,7 @@ def plan(config: ReproduceConfig) -> Run:
     """The checked request: the recording and the training it asks for, refused before anything runs when it would
     train over a finished training of another request."""
     from kitbench.recording.recorder import load_recipe
-    from kitbench.training import run
+    from kitbench.training import device, run
 
     entry = check(config)
     config_path = ROOT / "policies" / f"{config.config}.json"
@@ -134,9 +137,10 @@ def plan(config: ReproduceConfig) -> Run:
     data, policy_dir = config.folder / "data", config.folder / f"seed{seed}"
     recipe = load_recipe(entry.recipe, episodes=demos, out=data, workers=config.workers)
     recipe = recipe.replace(resume=data.exists(), mcap=False)
-    threads = run.train_threads(config_path, entry.threads)
+    on_cpu = device.cpu_flags(config_path, config.cpu)
+    threads = run.train_threads(config_path, entry.threads, on_cpu=bool(on_cpu))
     data_stamp = json.dumps(recipe.info().to_json(), sort_keys=True) + f"|{demos}"
-    extra = () if config.save_every is None else (f"--save_freq={config.save_every}",)
+    extra = on_cpu + (() if config.save_every is None else (f"--save_freq={config.save_every}",))
     training = run.Training(config_path, data, policy_dir, threads, config.steps, seed, extra, data_stamp)
     run.check_replace(training, config.overwrite)  # before the recording: a refusal costs nothing
     return Run(config, entry, config_path, demos, seed, recipe, training)
@@ -161,6 +165,13 @@ def expectation(
     (`step`, where the row keeps its own) or else by the two reference workloads."""
     minutes = entry.train_minutes_here(here, steps, step)
     updates = steps or entry.steps
+    timed = f"a step {step:.3f} s here, lerobot-train's own timing on {threads} thread(s)" if step else ""
+    if minutes is None and step:  # nothing published to scale: the steps timed here alone
+        return (
+            f"expected training time: its {updates} steps alone take about {updates * step / 60:.1f} min here "
+            f"({timed}; the published {entry.train_minutes:.1f} min on {entry.device} came without a step time or "
+            "a reference workload)"
+        )
     if minutes is None:
         return (
             f"expected training time: not scaled here (the published {entry.train_minutes:.1f} min on "
@@ -168,7 +179,6 @@ def expectation(
             "thread(s)"
         )
     published = f"published {entry.train_minutes:.1f} min for {entry.steps} on {entry.device}"
-    timed = f"a step {step:.3f} s here, lerobot-train's own timing on {threads} thread(s)" if step else ""
     if step and entry.step_seconds:
         return (
             f"expected training time: about {minutes:.1f} min here for {updates} steps ({timed}; {published} at "

@@ -336,3 +336,8 @@ def test_a_row_without_a_reference_workload_is_not_scaled():
     assert expectation(gpu, 2.0, 8).startswith(
         "expected training time: not scaled here (the published 6.4 min on one H100 came without a reference workload)"
     )
+    # trained on a CPU (`--cpu`), its steps are timed here and said alone
+    assert expectation(gpu, 2.0, 2, None, 0.9) == (
+        "expected training time: its 4000 steps alone take about 60.0 min here (a step 0.900 s here, lerobot-train's "
+        "own timing on 2 thread(s); the published 6.4 min on one H100 came without a step time or a reference workload)"
+    )

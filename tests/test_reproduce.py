@@ -281,6 +281,46 @@ def test_an_unpublished_config_trains_on_the_threads_its_kind_was_measured_faste
     assert run.train_threads(policies / "act_lift_peg_upright_rgb_96_cpu.json", published_threads=2) == "4"
 
 
+GPU_CONFIG = "act_lift_peg_upright_rgb"
+
+
+def test_a_gpu_config_is_refused_without_cuda_in_one_line_naming_cpu_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    from kitbench.training import device
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(device, "cuda_available", lambda: False)
+    assert cli.main(["reproduce", GPU_CONFIG, "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("kitbench reproduce: error: ") and err.count("\n") == 1
+    assert f"{GPU_CONFIG}.json trains on cuda and torch sees no CUDA device here" in err and "--cpu" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("bf16", [True, False])
+def test_cpu_trains_a_gpu_config_as_the_cpu_configs_train_and_is_part_of_its_request(tmp_path, monkeypatch, bf16):
+    from kitbench.reproduce import ReproduceConfig, plan
+    from kitbench.training import device, precision
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.delenv(precision.VAR, raising=False)
+    monkeypatch.setattr(device, "cuda_available", lambda: False)
+    monkeypatch.setattr(precision, "cpu_bf16", lambda: bf16)
+    planned = plan(ReproduceConfig(GPU_CONFIG, out=tmp_path / "run", seed=56977, cpu=True))
+    command = planned.training.request()["command"]
+    amp = "--policy.use_amp=true" if bf16 else "--policy.use_amp=false"
+    assert {"--policy.device=cpu", "--num_workers=1", amp} <= set(command), command
+    assert "--seed=56977" in command and f"--config_path={ROOT / 'policies' / GPU_CONFIG}.json" in command
+    # every core to torch, as a CPU camera config trains, not the cores a GPU's 8 loader workers leave
+    assert planned.training.threads == str(os.cpu_count())
+    # a CPU config trains as it is with --cpu or without
+    for cpu in (True, False):
+        flags = plan(ReproduceConfig("act_lift_peg_upright_rgb_96_cpu", out=tmp_path / f"cpu{cpu}", cpu=cpu))
+        assert "--policy.device=cpu" not in flags.training.request()["command"]
+    monkeypatch.setattr(device, "cuda_available", lambda: True)  # where torch sees CUDA, the GPU config as written
+    gpu = plan(ReproduceConfig(GPU_CONFIG, out=tmp_path / "gpu")).training.request()["command"]
+    assert not any(a.startswith(("--policy.device", "--num_workers", "--policy.use_amp")) for a in gpu), gpu
+
+
 def test_save_every_keeps_checkpoints_along_the_training_and_is_part_of_its_request(tmp_path):
     from kitbench.reproduce import ReproduceConfig, plan
 

@@ -140,18 +140,19 @@ class TrainingProgress:
         self.bar.close()
 
 
-def train_threads(config_path: Path, published_threads: int | None = None) -> str:
+def train_threads(config_path: Path, published_threads: int | None = None, on_cpu: bool = False) -> str:
     """torch's threads for lerobot-train: OMP_NUM_THREADS if set, else the published run's, else every core for a
     config that reads cameras on the CPU (its update takes a third of a second or more, a loader worker a millisecond
     a sample: docs/training.md), and otherwise the cores its loader workers leave (at least one): on a few cores
-    torch's threads otherwise fight the workers, and a GPU's loader workers need the cores."""
+    torch's threads otherwise fight the workers, and a GPU's loader workers need the cores. `on_cpu`: a GPU config
+    trained on this CPU (`kitbench.training.device`), whose published run's threads were another machine's."""
     if os.environ.get(THREADS_VAR):
         return os.environ[THREADS_VAR]
-    if published_threads is not None:
+    if published_threads is not None and not on_cpu:
         return str(published_threads)
     config = json.loads(Path(config_path).read_text())
     cores = os.cpu_count() or 1
-    on_cpu = (config.get("policy") or {}).get("device") == "cpu"
+    on_cpu = on_cpu or (config.get("policy") or {}).get("device") == "cpu"
     if on_cpu and (config.get("env") or {}).get("obs_type", "state") != "state":
         return str(cores)
     return str(max(1, cores - int(config.get("num_workers", 4))))
