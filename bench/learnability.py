@@ -78,7 +78,7 @@ from kitbench.published import Published, load_published
 from kitbench.recording.config import RECIPE_KEYS, RECIPE_TABLE, RecordConfig
 from kitbench.registration import canonical_task, task_entry
 from kitbench.training import pace, run
-from kitbench.training.reference import reference_seconds
+from kitbench.training.reference import Reading, read
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITE_NAMES = {"standard": "{snake}.toml", "heldout": "{snake}_heldout.toml"}
@@ -500,10 +500,11 @@ def policy_dir_of(plan: Plan, run_dir: Path, seed: int | None) -> Path:
     return run_dir / (plan.policy if seed is None else f"{plan.policy}_seed{seed}")
 
 
-def one_run(plan: Plan, demos: int, reference_s: float, on_row=None) -> list[dict]:
+def one_run(plan: Plan, demos: int, reading: Reading, on_row=None) -> list[dict]:
     """Record (or reuse), train once per training seed, and score each checkpoint once per suite and option set:
     one row each (`on_row(row)` as each is made)."""
     started = now()
+    reference_s = reading.seconds
     name = run_name(plan, demos)
     run_dir = plan.out / name
     data = run_dir / "data"
@@ -532,7 +533,7 @@ def one_run(plan: Plan, demos: int, reference_s: float, on_row=None) -> list[dic
                 what = f" with {options_tag(options)}" if options else ""
                 print(f"[{name}] evaluating on {suite[1]}{what}", flush=True)
                 eval_cmd, report, _ = evaluate(plan, trained["dir"], policy_dir, options, suite)
-                row = _row(plan, shared, trained, eval_cmd, report, options, seed, suite, reference_s)
+                row = _row(plan, shared, trained, eval_cmd, report, options, seed, suite, reading)
                 rows.append(row)
                 if on_row is not None:
                     on_row(row)
@@ -548,7 +549,7 @@ def _row(
     options,
     seed: int | None = None,
     suite: tuple[str, Path] = ("standard", Path()),
-    reference_s: float | None = None,
+    reading: Reading | None = None,
 ) -> dict:
     """One results row: the run's recording and training (`shared`, `trained`) and one evaluation of it."""
     demos, started, name, data = shared["demos"], shared["started"], shared["name"], shared["data"]
@@ -581,8 +582,11 @@ def _row(
         # would dominate the wall clock
         "steps_per_s": trained["steps"] / (trained["loop_seconds"] or trained["seconds"]),
         "step_seconds": pace.step_seconds(policy_dir / "train.log"),
-        "reference_seconds": reference_s,
+        "reference_seconds": None if reading is None else reading.seconds,
         "reference_seconds_after_training": trained.get("reference_after"),
+        # the workload's share of its threads' time: below kitbench.training.reference.BUSY_SHARE the machine was busy
+        "reference_share": None if reading is None else reading.share,
+        "reference_share_after_training": trained.get("reference_after_share"),
         "success": {"count": k, "episodes": n, "rate": k / n if n else 0.0, "ci95": [lo, hi]},
         "criteria": {c: r["rate"] for c, r in report["criteria"].items()},
         "failure_categories": report["failure_categories"],
@@ -660,8 +664,9 @@ def published_entry(config: Path) -> Published | None:
     return load_published().get(config.stem)
 
 
-def print_cost(plan: Plan, reference_s: float) -> None:
+def print_cost(plan: Plan, reading: Reading) -> None:
     """What the run will do and, from the config's published figures, about how long it will take here."""
+    reference_s = reading.seconds
     trainings = len(plan.demos) * len(plan.train_seeds)
     evaluations = trainings * len(plan.suites) * len(plan.option_sets)
     print(
@@ -669,6 +674,8 @@ def print_cost(plan: Plan, reference_s: float) -> None:
         f"(seeds {', '.join('config' if s is None else str(s) for s in plan.train_seeds)}), {evaluations} "
         f"evaluation(s) on {', '.join(name for name, _ in plan.suites)}; reference workload here: {reference_s:.1f} s"
     )
+    if reading.busy:
+        print(f"cost: the machine was busy as the run began: {reading.busy_note(int(plan.train_threads))}")
     entry = published_entry(plan.config)
     train_min = None if entry is None else entry.train_minutes_here(reference_s, plan.steps)
     if entry is None or train_min is None:
@@ -845,8 +852,8 @@ def main() -> int:
     except (UsageError, run.FinishedTraining) as exc:
         print(f"learnability: error: {exc}", file=sys.stderr)
         return 2
-    reference_s = reference_seconds(int(plan.train_threads))
-    print_cost(plan, reference_s)
+    reading = read(int(plan.train_threads))
+    print_cost(plan, reading)
     plan.out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     pngs: list[Path] = []
@@ -859,7 +866,7 @@ def main() -> int:
 
     try:
         for demos in plan.demos:
-            one_run(plan, demos, reference_s, on_row)
+            one_run(plan, demos, reading, on_row)
     except run.FinishedTraining as exc:  # made by another run into the same folder since this one checked
         print(f"learnability: error: {exc}", file=sys.stderr)
         return 2

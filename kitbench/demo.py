@@ -19,6 +19,7 @@ from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, canonical_task, make_env
 from kitbench.shipped import ROOT
+from kitbench.training.reference import Reading, read
 
 
 @dataclass
@@ -178,11 +179,10 @@ class LearningLoop:
 LOOP_CONFIG = {True: "act_lift_peg_upright_rgb", False: "act_lift_peg_upright_rgb_96_cpu"}
 
 
-def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
+def learning_loop(cuda: bool, reading: Reading | None = None) -> LearningLoop:
     """The camera config for this machine: the GPU's where torch sees CUDA, else the one trained on 2 CPU cores."""
     from kitbench.reproduce import load_published
     from kitbench.training.precision import amp_flags
-    from kitbench.training.reference import reference_seconds
     from kitbench.training.run import train_threads
 
     name = LOOP_CONFIG[cuda]
@@ -194,8 +194,10 @@ def learning_loop(cuda: bool, reference_s: float | None = None) -> LearningLoop:
     threads = train_threads(config, entry.threads)
     published = f"{entry.rate:.1%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
     if entry.training_reference:
-        here = reference_seconds(int(threads)) if reference_s is None else reference_s
-        minutes = f"about {entry.train_minutes_here(here):.0f} min of training here"
+        reading = read(int(threads)) if reading is None else reading
+        minutes = f"about {entry.train_minutes_here(reading.seconds):.0f} min of training here"
+        if reading.busy:  # a busy machine's estimate is not this machine's: say so beside it
+            minutes += f" (busy as it was timed: {reading.busy_note(int(threads))})"
     else:
         minutes = "its training time here not estimated"
     precision = amp_flags(config)

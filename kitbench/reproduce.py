@@ -198,11 +198,7 @@ def expectation(
 
 def busy_warning(reading: Reading, threads: int) -> str:
     """One line saying that another process held the cores while the reference workload was timed before training."""
-    return (
-        f"the machine was busy before the training: the reference workload had {reading.share:.0%} of its {threads} "
-        f"thread(s)' time (about 100% alone: another process held the cores), so its {reading.seconds:.1f} s say "
-        "little of this machine and minutes scaled by it read long"
-    )
+    return f"the machine was busy before the training: {reading.busy_note(threads)}"
 
 
 def _reading(seconds: float, share: float | None) -> str:

@@ -35,6 +35,17 @@ def test_demo_refuses_an_unknown_task(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+def test_the_closing_loops_estimate_says_when_the_machine_was_busy_as_it_was_timed():
+    from kitbench.demo import learning_loop
+    from kitbench.training.reference import Reading
+
+    quiet = learning_loop(cuda=False, reading=Reading(1.0, 1.0)).minutes
+    busy = learning_loop(cuda=False, reading=Reading(1.0, 0.5)).minutes
+    assert "busy" not in quiet
+    assert busy.startswith(f"{quiet} (busy as it was timed: the reference workload had 50% of its "), busy
+    assert busy.endswith("so its 1.0 s say little of this machine and minutes scaled by it read long)"), busy
+
+
 def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeypatch, needs_vulkan):
     """The record -> train -> score commands the demo ends with, run as printed from a project folder (its recipes,
     configs and suites) on the CPU, with only a tiny size added to each."""
@@ -43,15 +54,16 @@ def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeyp
     from pathlib import Path
 
     from kitbench.demo import learning_loop
+    from kitbench.training.reference import Reading
     from tests import launch
 
     root = Path(__file__).resolve().parents[1]
     for folder in ("datasets", "policies", "eval"):
         (tmp_path / folder).symlink_to(root / folder)
     monkeypatch.chdir(tmp_path)
-    loop = learning_loop(cuda=False, reference_s=1.0)
+    loop = learning_loop(cuda=False, reading=Reading(1.0, 1.0))
     assert loop.config == "act_lift_peg_upright_rgb_96_cpu" and "min on 2 CPU cores" in loop.published
-    assert "min of training here" in loop.minutes  # scaled by the reference workload
+    assert "min of training here" in loop.minutes and "busy" not in loop.minutes  # scaled by the reference workload
     lines = loop.lines()
     assert any(
         line.endswith(" ".join([*(f"{k}={v}" for k, v in loop.train_env.items()), *loop.train])) for line in lines

@@ -28,9 +28,10 @@ from kitbench import demo, reproduce, shipped
 from kitbench.errors import KitbenchError
 from kitbench.evaluation.suite import load_suite
 from kitbench.recording.recorder import load_recipe
+from kitbench.training.reference import Reading
 
 entry = reproduce.check(reproduce.ReproduceConfig("act_lift_peg_upright_state"))
-loop = demo.learning_loop(False, reference_s=1.0)
+loop = demo.learning_loop(False, reading=Reading(1.0, 1.0))
 try:
     shipped.find("nightly", "suite")
     unknown = None

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from kitbench.training.reference import Reading
 from tests import launch
 from tests.lerobot_cli import OFFLINE
 
@@ -131,10 +132,13 @@ def test_the_cost_of_a_camera_config_says_the_reference_workload_does_not_carry_
         str(tmp_path / "out"),
     ]
     plan = learnability.check_args(learnability.build_parser().parse_args([*argv, "--demos", "2"]))
-    learnability.print_cost(plan, 5.0)
+    learnability.print_cost(plan, Reading(5.0, 1.0))
     printed = capsys.readouterr().out
-    assert "cost: about " in printed and "min a training" in printed
+    assert "cost: about " in printed and "min a training" in printed and "busy" not in printed
     assert ("does not carry a camera config's minutes between machines" in printed) is camera
+    learnability.print_cost(plan, Reading(5.0, 0.5))  # another process held the cores as it was timed
+    busy = capsys.readouterr().out
+    assert "cost: the machine was busy as the run began: the reference workload had 50% of its " in busy
     assert not (tmp_path / "out").exists()
 
 
@@ -156,6 +160,7 @@ def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_p
     ]
     assert all(r["reference_seconds"] > 0 and r["success"]["episodes"] == 1 for r in rows)
     assert all(r["reference_seconds_after_training"] > 0 for r in rows)  # timed again as each training ended
+    assert all(0 < r["reference_share"] and 0 < r["reference_share_after_training"] for r in rows)
     assert all(r["step_seconds"] > 0 for r in rows)  # lerobot-train's own step time, from each training's log
     assert printed.count("s at this run's start)") == 2  # one line per training
     heldout = [r for r in rows if r["suite_name"] == "heldout"]
@@ -200,6 +205,6 @@ def test_a_finished_training_is_refused_before_anything_is_recorded_unless_overw
 
     # --overwrite goes on to record (here: the stand-in refuses to run anything)
     monkeypatch.setattr(sys, "argv", [*argv, "--overwrite"])
-    monkeypatch.setattr(learnability, "reference_seconds", lambda threads: 1.0)
+    monkeypatch.setattr(learnability, "read", lambda threads: Reading(1.0, 1.0))
     with pytest.raises(AssertionError, match=r"kitbench', 'record'"):
         learnability.main()

@@ -70,8 +70,9 @@ def test_kitbench_cpu_amp_decides_instead_of_the_cpu(monkeypatch):
 
 def test_the_demo_prints_the_command_this_cpu_trains_with(no_bf16):
     from kitbench.demo import learning_loop
+    from kitbench.training.reference import Reading
 
-    loop = learning_loop(cuda=False, reference_s=1.0)
+    loop = learning_loop(cuda=False, reading=Reading(1.0, 1.0))
     assert loop.train[-1] == "--policy.use_amp=false" and "in fp32, as this CPU computes no bf16" in loop.minutes
     assert any(line.endswith("--policy.use_amp=false") for line in loop.lines())
 

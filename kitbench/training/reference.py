@@ -33,6 +33,14 @@ class Reading:
         """Whether another process held the cores while the workload was timed (the seconds then read long)."""
         return self.share < BUSY_SHARE
 
+    def busy_note(self, threads: int) -> str:
+        """Why a busy reading says little, in the words every runner uses."""
+        return (
+            f"the reference workload had {self.share:.0%} of its {threads} thread(s)' time (about 100% alone: another "
+            f"process held the cores), so its {self.seconds:.1f} s say little of this machine and minutes scaled by "
+            "it read long"
+        )
+
 
 def reference_seconds(threads: int = 1) -> float:
     """Seconds for the fixed workload on `threads` torch threads (the threads are restored after)."""
