@@ -38,8 +38,8 @@ def test_a_cpu_camera_config_trains_in_fp32_on_a_cpu_without_bf16(no_bf16, tmp_p
     training = Training(CAMERA_CPU, tmp_path / "data", tmp_path / "policy", "2")
     assert "--policy.use_amp=false" in training.request()["command"]
     assert precision.why(tuple(command)) == (
-        "training in fp32 (--policy.use_amp=false): this CPU computes no bf16 (oneDNN), where the config's bf16 "
-        "autocast is ~20x slower than fp32; KITBENCH_CPU_AMP=1 keeps it"
+        "training in fp32 (--policy.use_amp=false): this CPU computes no bf16 (oneDNN), where bf16 autocast is "
+        "~20x slower than fp32; KITBENCH_CPU_AMP=1 keeps it"
     )
     # configs that ask for no autocast, or train on a GPU, are left as written
     assert precision.amp_flags(STATE) == () and precision.amp_flags(GPU) == ()
