@@ -19,6 +19,7 @@ from kitbench.config.declare import setting, validate
 from kitbench.errors import KitbenchError
 from kitbench.registration import TASKS, canonical_task, make_env
 from kitbench.shipped import ROOT
+from kitbench.training.device import cuda_available
 from kitbench.training.reference import Reading, read
 
 
@@ -141,12 +142,6 @@ def shown(path: Path) -> str:
         return str(path.relative_to(Path.cwd()))
     except ValueError:
         return str(path)
-
-
-def cuda_available() -> bool:
-    import torch
-
-    return torch.cuda.is_available()
 
 
 @dataclass(frozen=True)
