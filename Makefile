@@ -45,7 +45,9 @@ lint: bootstrap
 
 # `make test`: every test but the cases marked slow (each a further case of a test whose other cases run here);
 # `make test-all` (CI): every case.
-PYTEST := $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder
+# A worker ended by a hung test (pyproject's timeout) is replaced once; its file runs again there, and the run stops if
+# it hangs again (pytest-xdist would otherwise rerun it on up to 4 new workers a core).
+PYTEST := $(PY) -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder --max-worker-restart=1
 test: lint
 	@$(call step,pytest,$(PYTEST) -m "not slow" $(PYTEST_ARGS))
 
