@@ -108,6 +108,11 @@ def heldout(entry: Published) -> str:
     return "; ".join(cells)
 
 
+def command(entry: Published) -> str:
+    """The command that trains and scores a new seed as the figure's were: `--cpu` where they ran on the CPU."""
+    return f"`{COMMAND} {entry.config}{' --cpu' if entry.cpu else ''}`"
+
+
 def row(cells: list[str]) -> str:
     return "| " + " | ".join(cells) + " |"
 
@@ -144,7 +149,7 @@ def results_table(published: Mapping[str, Published]) -> str:
                     heldout(entry),
                     f"{entry.train_minutes:.1f} min",
                     machine(entry),
-                    f"`{COMMAND} {name}`",
+                    command(entry),
                 ]
             )
         )

@@ -47,6 +47,7 @@ OPTIONAL = (
     "train_reference_seconds",
     "step_seconds",
     "threads",
+    "cpu",
     *HELDOUT_FIGURES,
     *SELECTION_FIGURES,
 )
@@ -75,6 +76,7 @@ class Published:
     train_reference_seconds: float | None = None
     step_seconds: float | None = None  # a step of the published training (kitbench.training.pace, from its log)
     threads: int | None = None  # torch's threads in the published trainings (default: the cores workers leave)
+    cpu: bool = False  # a GPU config whose figure's trainings ran on the CPU (`kitbench reproduce --cpu`)
     seed_success: tuple[int, ...] = ()  # each training seed's successes over every suite, and its episodes
     seed_episodes: tuple[int, ...] = ()
     # the held-out seeds trained so far, in `heldout_seeds`' order: each one's successes over every suite, its episodes
@@ -159,6 +161,13 @@ def _time(where: str, entry: dict, key: str) -> float | None:
     return float(value)
 
 
+def _flag(where: str, entry: dict, key: str) -> bool:
+    value = entry.get(key, False)
+    if not isinstance(value, bool):
+        raise KitbenchError(f"{where}: {key} is {value!r}; valid choices: true, false")
+    return value
+
+
 def _required_time(where: str, entry: dict, key: str) -> float:
     value = _time(where, entry, key)
     if value is None:
@@ -208,6 +217,7 @@ def parse_row(name: str, entry: dict, where: str) -> Published:
         train_reference_seconds=_time(where, entry, "train_reference_seconds"),
         step_seconds=_time(where, entry, "step_seconds"),
         threads=None if "threads" not in entry else int(entry["threads"]),
+        cpu=_flag(where, entry, "cpu"),
         seed_success=tuple(int(s) for s in entry.get("seed_success", ())),
         seed_episodes=tuple(int(n) for n in entry.get("seed_episodes", ())),
         heldout_success=tuple(int(s) for s in entry.get("heldout_success", ())),

@@ -146,6 +146,7 @@ def _row(**changes: str | None) -> str:
         ({"train_reference_seconds": "0"}, "train_reference_seconds is 0; give a positive number"),
         ({"step_seconds": '"fast"'}, "step_seconds is 'fast'; give a positive number"),
         ({"train_minutes": "-13.5"}, "train_minutes is -13.5; give a positive number"),
+        ({"cpu": '"yes"'}, "cpu is 'yes'; valid choices: true, false"),
         (
             {"heldout_success": "[180, 170]", "heldout_episodes": "[200]"},
             "heldout_success and heldout_episodes give 2 and 1 figures; give one each for the first held-out seeds",
@@ -219,6 +220,20 @@ def test_a_row_chosen_before_the_split_shows_its_selection_figures_on_the_test_s
     assert "selection seeds 1000: 99.0%, 2000: 98.0%, 3000: 97.0% on the test suites, before the split" in (
         figures.figure_from(entry)
     )
+
+
+def test_a_figure_trained_on_the_cpu_names_cpu_in_its_reproduce_command(tmp_path):
+    path = tmp_path / "published.toml"
+    path.write_text(_row(cpu="true"))
+    assert f"| `kitbench reproduce {CONFIG} --cpu` |" in figures.results_table(load_published(path))
+    path.write_text(_row())
+    assert f"| `kitbench reproduce {CONFIG}` |" in figures.results_table(load_published(path))
+    # a shipped row says so only of a config made for a GPU: a CPU config trains on the CPU without the flag
+    from kitbench.training.device import config_device
+
+    for name, entry in load_published().items():
+        if entry.cpu:
+            assert config_device(ROOT / "policies" / f"{name}.json") == "cuda", name
 
 
 def test_the_learnability_bench_reads_the_same_rows_as_reproduce():
@@ -331,13 +346,13 @@ def test_the_reference_workload_beside_busy_processes_reads_busy(monkeypatch):
 def test_a_row_without_a_reference_workload_is_not_scaled():
     from kitbench.reproduce import expectation
 
-    gpu = load_published()["act_lift_peg_upright_rgb"]
+    gpu = load_published()["diffusion_lift_peg_upright_rgb"]
     assert gpu.train_minutes_here(2.0) is None
     assert expectation(gpu, 2.0, 8).startswith(
-        "expected training time: not scaled here (the published 6.4 min on one H100 came without a reference workload)"
+        "expected training time: not scaled here (the published 9.1 min on one H100 came without a reference workload)"
     )
     # trained on a CPU (`--cpu`), its steps are timed here and said alone
     assert expectation(gpu, 2.0, 2, None, 0.9) == (
-        "expected training time: its 4000 steps alone take about 60.0 min here (a step 0.900 s here, lerobot-train's "
-        "own timing on 2 thread(s); the published 6.4 min on one H100 came without a step time or a reference workload)"
+        "expected training time: its 3000 steps alone take about 45.0 min here (a step 0.900 s here, lerobot-train's "
+        "own timing on 2 thread(s); the published 9.1 min on one H100 came without a step time or a reference workload)"
     )

@@ -317,8 +317,11 @@ def test_cpu_trains_a_gpu_config_as_the_cpu_configs_train_and_is_part_of_its_req
         flags = plan(ReproduceConfig("act_lift_peg_upright_rgb_96_cpu", out=tmp_path / f"cpu{cpu}", cpu=cpu))
         assert "--policy.device=cpu" not in flags.training.request()["command"]
     monkeypatch.setattr(device, "cuda_available", lambda: True)  # where torch sees CUDA, the GPU config as written
-    gpu = plan(ReproduceConfig(GPU_CONFIG, out=tmp_path / "gpu")).training.request()["command"]
+    on_gpu = plan(ReproduceConfig(GPU_CONFIG, out=tmp_path / "gpu")).training
+    gpu = on_gpu.request()["command"]
     assert not any(a.startswith(("--policy.device", "--num_workers", "--policy.use_amp")) for a in gpu), gpu
+    # the threads its figure's CPU trainings ran on (`cpu = true`) are not a GPU training's: the loader workers' cores
+    assert load_published()[GPU_CONFIG].cpu and on_gpu.threads == str(max(1, (os.cpu_count() or 1) - 8))
 
 
 def test_save_every_keeps_checkpoints_along_the_training_and_is_part_of_its_request(tmp_path):
