@@ -333,7 +333,7 @@ def check_args(args: argparse.Namespace) -> Plan:
         control_mode=args.control_mode or recorded_mode,
         control_mode_flag=args.control_mode,
         config_has_env=bool(env),
-        train_threads=run.train_threads(config, published.threads if published else None),
+        train_threads=run.train_threads(config, published.threads_on(False) if published else None),
         action_noise=args.action_noise,
         noise_phases=args.noise_phases,
         settle_steps=args.settle_steps,
@@ -677,6 +677,9 @@ def print_cost(plan: Plan, reading: Reading) -> None:
     if reading.busy:
         print(f"cost: the machine was busy as the run began: {reading.busy_note(int(plan.train_threads))}")
     entry = published_entry(plan.config)
+    if entry is not None and entry.cpu:  # this bench trains the config as written, not as `--cpu` does
+        print(f"cost: the published minutes are {entry.device}' with `kitbench reproduce --cpu`; not scaled here")
+        return
     train_min = None if entry is None else entry.train_minutes_here(reference_s, plan.steps)
     if entry is None or train_min is None:
         print("cost: no published training time for this config to scale (policies/published.toml)")

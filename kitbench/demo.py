@@ -186,9 +186,11 @@ def learning_loop(cuda: bool, reading: Reading | None = None) -> LearningLoop:
     recipe = entry.recipe.relative_to(ROOT)
     train_dir = Path("outputs/train") / name
     suite = Path("eval/suites") / f"{entry.suites[0]}.toml"
-    threads = train_threads(config, entry.threads)
+    threads = train_threads(config, entry.threads_on(False))  # the config as written, on its own device
     published = f"{entry.rate:.1%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
-    if entry.training_reference:
+    if entry.cpu:  # its figure trained on a CPU (`kitbench reproduce --cpu`); here it trains on the GPU
+        minutes = f"its training time on this GPU not estimated (the published minutes are {entry.device}')"
+    elif entry.training_reference:
         reading = read(int(threads)) if reading is None else reading
         minutes = f"about {entry.train_minutes_here(reading.seconds):.0f} min of training here"
         if reading.busy:  # a busy machine's estimate is not this machine's: say so beside it

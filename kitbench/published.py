@@ -120,6 +120,11 @@ class Published:
         """The selection seeds' pooled figure on the validation suite, where the row keeps it."""
         return sum(self.selection_success) / sum(self.selection_episodes) if self.selection_success else None
 
+    def threads_on(self, cpu: bool) -> int | None:
+        """The published trainings' torch threads for a training on the kind of device they ran on (`cpu`: a GPU
+        config trained on this CPU); None for another, whose threads theirs do not speak for."""
+        return self.threads if cpu == self.cpu else None
+
     @property
     def training_reference(self) -> float | None:
         """The reference workload's seconds that go with train_minutes (and step_seconds)."""

@@ -138,9 +138,7 @@ def plan(config: ReproduceConfig) -> Run:
     recipe = load_recipe(entry.recipe, episodes=demos, out=data, workers=config.workers)
     recipe = recipe.replace(resume=data.exists(), mcap=False)
     on_cpu = device.cpu_flags(config_path, config.cpu)
-    # the published trainings' threads speak for a training on the device they ran on (`cpu`: a GPU config's on a CPU)
-    published_threads = entry.threads if bool(on_cpu) == entry.cpu else None
-    threads = run.train_threads(config_path, published_threads, on_cpu=bool(on_cpu))
+    threads = run.train_threads(config_path, entry.threads_on(bool(on_cpu)), on_cpu=bool(on_cpu))
     data_stamp = json.dumps(recipe.info().to_json(), sort_keys=True) + f"|{demos}"
     extra = on_cpu + (() if config.save_every is None else (f"--save_freq={config.save_every}",))
     training = run.Training(config_path, data, policy_dir, threads, config.steps, seed, extra, data_stamp)

@@ -46,6 +46,25 @@ def test_the_closing_loops_estimate_says_when_the_machine_was_busy_as_it_was_tim
     assert busy.endswith("so its 1.0 s say little of this machine and minutes scaled by it read long)"), busy
 
 
+def test_the_closing_loop_on_a_gpu_does_not_scale_a_figure_trained_on_a_cpu(monkeypatch):
+    """The GPU's camera config publishes its held-out seeds trained on 2 CPU cores (`cpu = true`): their minutes and
+    threads say nothing of a training on this GPU, so neither is carried over."""
+    import os
+
+    from kitbench.demo import learning_loop
+    from kitbench.reproduce import load_published
+    from kitbench.training.reference import Reading
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    loop = learning_loop(cuda=True, reading=Reading(1.0, 1.0))
+    entry = load_published()[loop.config]
+    assert entry.cpu and entry.threads == 2
+    assert loop.minutes == "its training time on this GPU not estimated (the published minutes are 2 CPU cores')"
+    assert loop.published.endswith("min on 2 CPU cores")
+    # the cores its 8 loader workers leave, as lerobot-train runs a GPU config, not the CPU trainings' 2
+    assert loop.train_env["OMP_NUM_THREADS"] == str(max(1, (os.cpu_count() or 1) - 8))
+
+
 def test_the_closing_loop_records_trains_and_scores_as_printed(tmp_path, monkeypatch, needs_vulkan):
     """The record -> train -> score commands the demo ends with, run as printed from a project folder (its recipes,
     configs and suites) on the CPU, with only a tiny size added to each."""

@@ -142,6 +142,24 @@ def test_the_cost_of_a_camera_config_says_the_reference_workload_does_not_carry_
     assert not (tmp_path / "out").exists()
 
 
+def test_the_cost_of_a_gpu_config_whose_figure_trained_on_a_cpu_is_not_scaled(tmp_path, capsys, monkeypatch):
+    """`act_lift_peg_upright_rgb` publishes minutes and threads of 2-core trainings run with `kitbench reproduce
+    --cpu`; this bench trains the config as written, so neither is carried over."""
+    import os
+
+    import bench.learnability as learnability
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    config = ROOT / "policies" / "act_lift_peg_upright_rgb.json"
+    argv = ["--task", TASK, "--obs", "rgb", "--config", str(config), "--out", str(tmp_path / "out"), "--demos", "2"]
+    plan = learnability.check_args(learnability.build_parser().parse_args(argv))
+    assert plan.train_threads == str(max(1, (os.cpu_count() or 1) - 8))  # not the CPU trainings' 2
+    learnability.print_cost(plan, Reading(5.0, 1.0))
+    printed = capsys.readouterr().out
+    assert "cost: the published minutes are 2 CPU cores' with `kitbench reproduce --cpu`; not scaled here" in printed
+    assert "cost: about " not in printed and not (tmp_path / "out").exists()
+
+
 def test_two_training_seeds_on_two_suites_give_the_pooled_table_and_resume(tmp_path, needs_vulkan, monkeypatch, capsys):
     config = _tiny_config(tmp_path)
     args = ["--config", str(config), "--steps", "2", "--train-seeds", "1,2", "--suites", "standard,heldout"]
