@@ -187,7 +187,7 @@ def learning_loop(cuda: bool, reading: Reading | None = None) -> LearningLoop:
     train_dir = Path("outputs/train") / name
     suite = Path("eval/suites") / f"{entry.suites[0]}.toml"
     threads = train_threads(config, entry.threads_on(False))  # the config as written, on its own device
-    published = f"{entry.rate:.1%} of {entry.episodes} published, {entry.train_minutes} min on {entry.extra['device']}"
+    published = f"{entry.rate:.1%} of {entry.episodes} published, {entry.train_minutes} min on {entry.device}"
     if entry.cpu:  # its figure trained on a CPU (`kitbench reproduce --cpu`); here it trains on the GPU
         minutes = f"its training time on this GPU not estimated (the published minutes are {entry.device}')"
     elif entry.training_reference:
