@@ -11,7 +11,8 @@ of another request (`--steps`, `--seed`, the threads, the data) is refused befor
 `--overwrite`. The verdict compares the
 run's rate with the 95% prediction interval of a new training seed (`stats.prediction_interval`: this run's
 sampling error, the published figure's, and the spread between its training seeds), not with the pooled
-figure's own interval, which is narrower than any single run's. Before the training starts, the published
+figure's own interval, which is narrower than any single run's; where that interval is all of [0, 1] (seeds far
+apart, or too few episodes), it gives no verdict and says so. Before the training starts, the published
 training minutes are scaled to this machine and printed as what to expect: by the config's own steps timed here
 (`kitbench.training.pace`: lerobot-train for a few steps) where the published row keeps its step time, else by a
 fixed reference workload (`kitbench.training.reference`) timed here; the workload is timed again as the training
@@ -289,6 +290,16 @@ def score(planned: Run, trained: dict, say=print) -> tuple[int, int]:
     return successes, episodes
 
 
+def judgement(rate: float, expected: tuple[float, float]) -> str:
+    """Where `rate` lies against a new training seed's expected range: consistent, below or above; none where the
+    range is all of [0, 1] (published seeds far apart, or too few episodes), which no run can fall outside."""
+    if expected == (0.0, 1.0):
+        return "none"
+    if expected[0] <= rate <= expected[1]:
+        return "consistent"
+    return "below" if rate < expected[0] else "above"
+
+
 def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: float, say=print) -> int:
     """Compare the run with where a new training seed lands, say so, write reproduce.json; 0 inside, 3 outside."""
     from kitbench.evaluation.stats import prediction_interval, wilson_interval
@@ -297,7 +308,8 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
     lo, hi = wilson_interval(successes, episodes)
     rate = successes / episodes
     expected = prediction_interval(list(entry.seed_success), list(entry.seed_episodes), episodes)
-    inside = expected[0] <= rate <= expected[1]
+    judged = judgement(rate, expected)
+    inside = judged in ("consistent", "none")
     say(f"\n{config.config}: {successes}/{episodes} = {rate:.1%} (95% CI {lo:.1%}–{hi:.1%})")
     say(
         f"published: {entry.success}/{entry.episodes} = {entry.rate:.1%} ({entry.interval[0]:.1%}–"
@@ -309,9 +321,13 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
         "this run's sampling error, the published figure's and the spread between its training seeds)"
     )
     say(
-        "consistent with the published figure"
-        if inside
-        else ("below" if rate < expected[0] else "above") + " what the published runs predict"
+        {
+            "consistent": "consistent with the published figure",
+            "below": "below what the published runs predict",
+            "above": "above what the published runs predict",
+            "none": f"no verdict: at 95% a new training seed scored on {episodes} episodes may land anywhere, so no "
+            f"rate falls outside (the published seeds at {', '.join(f'{r:.1%}' for r in entry.seed_rates)})",
+        }[judged]
     )
     minutes, after = trained["seconds"] / 60, trained["reference_after"]
     there = entry.train_minutes_here(here, None, trained["probe_step_seconds"])  # the published run's steps
@@ -332,6 +348,7 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
         "published_interval": list(entry.interval),
         "expected": list(expected),
         "inside": inside,
+        "verdict": judged,
         "train_minutes": minutes,
         "reference_seconds": here,
         "reference_seconds_after_training": after,

@@ -346,13 +346,13 @@ def test_the_reference_workload_beside_busy_processes_reads_busy(monkeypatch):
 def test_a_row_without_a_reference_workload_is_not_scaled():
     from kitbench.reproduce import expectation
 
-    gpu = load_published()["diffusion_lift_peg_upright_rgb"]
+    gpu = load_published()["act_assembling_kits_rgb"]
     assert gpu.train_minutes_here(2.0) is None
     assert expectation(gpu, 2.0, 8).startswith(
-        "expected training time: not scaled here (the published 9.1 min on one H100 came without a reference workload)"
+        "expected training time: not scaled here (the published 9.9 min on one H100 came without a reference workload)"
     )
     # trained on a CPU (`--cpu`), its steps are timed here and said alone
     assert expectation(gpu, 2.0, 2, None, 0.9) == (
         "expected training time: its 3000 steps alone take about 45.0 min here (a step 0.900 s here, lerobot-train's "
-        "own timing on 2 thread(s); the published 9.1 min on one H100 came without a step time or a reference workload)"
+        "own timing on 2 thread(s); the published 9.9 min on one H100 came without a step time or a reference workload)"
     )
