@@ -301,7 +301,8 @@ def judgement(rate: float, expected: tuple[float, float]) -> str:
 
 
 def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: float, say=print) -> int:
-    """Compare the run with where a new training seed lands, say so, write reproduce.json; 0 inside, 3 outside."""
+    """Compare the run with where a new training seed lands, say so, write reproduce.json; 0 inside or where no run
+    can fall outside, 3 outside."""
     from kitbench.evaluation.stats import prediction_interval, wilson_interval
 
     config, entry = planned.config, planned.entry
