@@ -327,7 +327,7 @@ def verdict(planned: Run, successes: int, episodes: int, trained: dict, here: fl
             "below": "below what the published runs predict",
             "above": "above what the published runs predict",
             "none": f"no verdict: at 95% a new training seed scored on {episodes} episodes may land anywhere, so no "
-            f"rate falls outside (the published seeds at {', '.join(f'{r:.1%}' for r in entry.seed_rates)})",
+            "rate falls outside the published seeds' spread",
         }[judged]
     )
     minutes, after = trained["seconds"] / 60, trained["reference_after"]
