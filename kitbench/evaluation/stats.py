@@ -59,22 +59,30 @@ def prediction_interval(
     successes: list[int], episodes: list[int], new_episodes: int, level: float = 0.95
 ) -> tuple[float, float]:
     """Where one new run of `new_episodes` episodes (a new training seed, scored the same way) is expected to land,
-    given runs that scored `successes[i]` of `episodes[i]`: their pooled rate, with the new run's own sampling
-    error, the pooled rate's, and the spread between runs beyond their sampling error (the method of moments),
-    under Student's t with k - 1 degrees of freedom for k runs (the spread is estimated from them; with one run,
-    the normal quantile and no spread). Clipped to [0, 1]."""
+    given runs that scored `successes[i]` of `episodes[i]`: the new run's rates y/N that a test of "it shares the
+    published runs' rate" does not reject at `level`. The test's variance holds the new run's sampling error, the
+    pooled rate's and the spread between runs beyond their sampling error (the method of moments), under Student's
+    t with k - 1 degrees of freedom for k runs (the normal quantile and no spread for one run). Its sampling errors
+    are taken at the rate the published runs and the new one share under that test, as Krishnamoorthy and Peng's
+    joint-sampling interval does (J. Statist. Plann. Inference 141 (2011) 1709-1718), not at the published rate
+    alone, which leaves no room at 0/n or n/n (docs/studies/prediction-interval.md)."""
     from scipy import stats  # type: ignore[import-untyped]
 
     k = len(successes)
-    p = sum(successes) / sum(episodes)
-    rates = [s / n for s, n in zip(successes, episodes, strict=True)]
-    binomial = p * (1 - p)
+    total, trials = sum(successes), sum(episodes)
+    p = total / trials
     between = 0.0
     if k > 1:
-        sample = float(np.var(rates, ddof=1))
-        between = max(0.0, sample - float(np.mean([binomial / n for n in episodes])))
+        rates = [s / n for s, n in zip(successes, episodes, strict=True)]
+        sampling = float(np.mean([p * (1 - p) / n for n in episodes]))
+        between = max(0.0, float(np.var(rates, ddof=1)) - sampling)
+    y = np.arange(new_episodes + 1)
+    shared = (total + y) / (trials + new_episodes)
+    binomial = shared * (1 - shared)
     run = between + binomial / new_episodes  # the new run's rate about the true mean
-    mean = (between + binomial / (sum(episodes) / k)) / k  # the pooled rate's own error
-    quantile = stats.t.ppf(0.5 + level / 2, k - 1) if k > 1 else stats.norm.ppf(0.5 + level / 2)
-    half = float(quantile) * math.sqrt(run + mean)
-    return max(0.0, p - half), min(1.0, p + half)
+    mean = (between + binomial / (trials / k)) / k  # the pooled rate's own error
+    quantile = float(stats.t.ppf(0.5 + level / 2, k - 1) if k > 1 else stats.norm.ppf(0.5 + level / 2))
+    kept = np.flatnonzero((y / new_episodes - p) ** 2 <= quantile**2 * (run + mean))
+    if kept.size == 0:  # a variance too small for even the nearest count: that count alone
+        kept = np.array([int(np.argmin(np.abs(y / new_episodes - p)))])
+    return float(kept[0] / new_episodes), float(kept[-1] / new_episodes)
