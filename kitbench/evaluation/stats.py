@@ -82,7 +82,6 @@ def prediction_interval(
     run = between + binomial / new_episodes  # the new run's rate about the true mean
     mean = (between + binomial / (trials / k)) / k  # the pooled rate's own error
     quantile = float(stats.t.ppf(0.5 + level / 2, k - 1) if k > 1 else stats.norm.ppf(0.5 + level / 2))
+    # never empty: the count nearest the published rate lies within half a count of it, inside the test's bound
     kept = np.flatnonzero((y / new_episodes - p) ** 2 <= quantile**2 * (run + mean))
-    if kept.size == 0:  # a variance too small for even the nearest count: that count alone
-        kept = np.array([int(np.argmin(np.abs(y / new_episodes - p)))])
     return float(kept[0] / new_episodes), float(kept[-1] / new_episodes)
