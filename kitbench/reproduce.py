@@ -241,19 +241,17 @@ def train_policy(planned: Run, say=print, measure: Reference = read) -> tuple[di
         say(fp32)
     say(f"training: {run.shell_line(request['command'], request['env'])}")
     say(f"  its log: {planned.policy_dir / 'train.log'}")
+    measured = {"reference_before": here, "reference_share": reading.share, "probe_step_seconds": step}
     try:
-        trained = run.train(training, progress=True, overwrite=planned.config.overwrite)
+        trained = run.train(training, progress=True, overwrite=planned.config.overwrite, measured=measured)
     except run.CommandFailed as exc:
         raise _train_failed(exc) from None
     if trained["reused"]:
         say(f"  reused the checkpoint the same command trained ({trained['seconds'] / 60:.1f} min then)")
-    trained = {
-        **trained,
-        "step_seconds": pace.step_seconds(planned.policy_dir / "train.log"),
-        "probe_step_seconds": step,
-        "reference_share": reading.share,
-    }
-    return trained, here
+        # the readings its training had; a stamp from before they were kept has none, so today's stand in
+        measured = {key: trained.get(key, value) for key, value in measured.items()}
+    trained = {**trained, **measured, "step_seconds": pace.step_seconds(planned.policy_dir / "train.log")}
+    return trained, float(trained["reference_before"])
 
 
 def score(planned: Run, trained: dict, say=print) -> tuple[int, int]:

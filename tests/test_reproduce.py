@@ -105,6 +105,10 @@ def test_reproduce_runs_end_to_end_and_compares_with_where_a_new_seed_lands(
     printed = capsys.readouterr().out
     assert status == 3 and "what the published runs predict" in printed
     assert "reused the checkpoint the same command trained" in printed and "timing" not in printed
+    # the readings the training had, not the ones taken the day it is reused
+    again = json.loads((out / f"seed{SEED}" / "reproduce.json").read_text())
+    for key in ("reference_seconds", "reference_share", "probe_step_seconds"):
+        assert again[key] == result[key], key
 
 
 def test_the_verdict_counts_the_spread_between_training_seeds():

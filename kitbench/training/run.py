@@ -268,10 +268,11 @@ def check_replace(training: Training, overwrite: bool = False) -> None:
     )
 
 
-def train(training: Training, *, progress: bool = False, overwrite: bool = False) -> dict:
+def train(training: Training, *, progress: bool = False, overwrite: bool = False, measured: dict | None = None) -> dict:
     """Run `training`, or reuse the checkpoint the same request trained. A finished training of another request
     is `FinishedTraining` unless `overwrite`; an unfinished one is trained again. `progress`: show the training's
-    steps as they come."""
+    steps as they come. `measured`: what the caller measured just before it (JSON values), kept in its stamp so a
+    reuse reports the readings the training had, not the ones of the day it is reused."""
     policy_dir, train_dir, threads = training.policy_dir, training.train_dir, training.threads
     request = training.request()
     command, env = request["command"], request["env"]
@@ -314,6 +315,7 @@ def train(training: Training, *, progress: bool = False, overwrite: bool = False
         "seed": train_config.get("seed"),
         "reference_after": after.seconds,
         "reference_after_share": after.share,
+        **(measured or {}),
     }
     stamp.write_text(json.dumps({"request": request, "trained": {**trained, "dir": str(train_dir)}}, indent=1) + "\n")
     return {**trained, "reused": False, "stamp": stamp}
