@@ -216,26 +216,29 @@ def _train_failed(exc: CommandFailed) -> KitbenchError:
 
 def train_policy(planned: Run, say=print, measure: Reference = read) -> tuple[dict, float]:
     """Time the reference workload (and, where the published row keeps its step time, the config's own steps), say
-    what the training should take here, then train (or reuse the checkpoint the same request trained); what
-    `run.train` returns, with the step times before and during the training, and the reference seconds."""
+    what the training should take here, then train; or reuse the checkpoint the same request trained, with the
+    readings it had. What `run.train` returns, with the step times before and during the training, and the reference
+    seconds before it."""
     from kitbench.training import pace, precision, run
 
     training = planned.training
     threads = int(training.threads)
     reading = measure(threads)
     here = reading.seconds
-    if reading.busy:
-        say(busy_warning(reading, threads))
     step = None
     request = training.request()
     reused = run.finished_request(planned.policy_dir) == request
-    if (planned.entry.step_seconds or pace.reference_misleads(planned.config_path)) and not reused:
-        say(f"timing {pace.PROBE_STEPS} steps of lerobot-train here (its log: {planned.policy_dir / pace.PROBE_LOG})")
-        try:
-            step = pace.probe(training)
-        except run.CommandFailed as exc:
-            raise _train_failed(exc) from None
-    say(expectation(planned.entry, here, threads, planned.config.steps, step))
+    if not reused:  # a reused training's readings and steps are its own, from its stamp
+        if reading.busy:
+            say(busy_warning(reading, threads))
+        if planned.entry.step_seconds or pace.reference_misleads(planned.config_path):
+            log = planned.policy_dir / pace.PROBE_LOG
+            say(f"timing {pace.PROBE_STEPS} steps of lerobot-train here (its log: {log})")
+            try:
+                step = pace.probe(training)
+            except run.CommandFailed as exc:
+                raise _train_failed(exc) from None
+        say(expectation(planned.entry, here, threads, planned.config.steps, step))
     fp32 = precision.why(tuple(request["command"]))
     if fp32:
         say(fp32)

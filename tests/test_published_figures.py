@@ -245,21 +245,37 @@ def test_the_learnability_bench_reads_the_same_rows_as_reproduce():
     assert learnability.published_entry(ROOT / "policies" / "act_lift_peg_upright_fetch_rgb.json") is None
 
 
-def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_path):
+def _stub_training(monkeypatch, step: float, after: float, after_share: float = 0.98) -> list[list[str]]:
+    """lerobot-train stood in for: its probe takes `step` seconds a step, the training writes a checkpoint where it
+    would, and the reference workload after it reads `after`. The training commands it was asked to run."""
+    from kitbench.training import pace, run
+
+    commands: list[list[str]] = []
+
+    def fake_train(command, log, env=None, follow=None):
+        commands.append(command)
+        out = Path(next(a for a in command if a.startswith("--output_dir=")).split("=", 1)[1])
+        model = out / "checkpoints" / "last" / "pretrained_model"
+        model.mkdir(parents=True)
+        (model / "model.safetensors").write_bytes(b"weights")
+        (model / "train_config.json").write_text(json.dumps({"steps": 3, "seed": 1000}))
+        log.write_text("num_total_params=5\n")
+        return 60.0
+
+    monkeypatch.setattr(pace, "probe", lambda training, steps=None: step)
+    monkeypatch.setattr(run, "run_logged", fake_train)
+    monkeypatch.setattr(run, "read", lambda threads: Reading(after, after_share))
+    return commands
+
+
+def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_path, monkeypatch):
     from kitbench.reproduce import ReproduceConfig, plan, train_policy
-    from kitbench.training import run
+    from kitbench.training import pace
 
     row = load_published()[CONFIG]
     slow = 2 * row.training_reference
     planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=row.steps // 2))
-    # a finished training of this very request: train_policy reuses it, and nothing runs lerobot-train
-    checkpoint = planned.training.train_dir / "checkpoints" / "last" / "pretrained_model"
-    checkpoint.mkdir(parents=True)
-    (checkpoint / "model.safetensors").write_bytes(b"weights")
-    trained = {"seconds": 60.0, "steps": row.steps // 2, "reference_after": slow, "command": []}
-    (planned.policy_dir / run.TRAIN_STAMP).write_text(
-        json.dumps({"request": planned.training.request(), "trained": trained})
-    )
+    commands = _stub_training(monkeypatch, step=2 * row.step_seconds, after=slow)
     said: list[str] = []
     threads: list[int] = []
 
@@ -268,18 +284,27 @@ def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_
         return Reading(slow, 0.97)
 
     result, here = train_policy(planned, said.append, measure=twice_as_slow)
-    assert result["reused"] is True and here == slow and threads == [1]  # the state config's published thread
-    # half the published steps, on a machine twice as slow: the published minutes (a reused training is not timed
-    # again, so the reference workload scales them even where the row keeps its step time)
-    assert said[0] == (
-        f"expected training time: about {row.train_minutes:.1f} min here for {row.steps // 2} steps (published "
-        f"{row.train_minutes:.1f} min for {row.steps} on {row.device}, whose reference workload took "
-        f"{row.training_reference:.1f} s; here {slow:.1f} s on 1 thread(s))"
+    assert result["reused"] is False and here == slow and threads == [1]  # the state config's published thread
+    # half the published steps, each twice as slow here as the row's own: the published minutes
+    assert said[0].startswith(f"timing {pace.PROBE_STEPS} steps of lerobot-train here")
+    assert said[1] == (
+        f"expected training time: about {row.train_minutes:.1f} min here for {row.steps // 2} steps (a step "
+        f"{2 * row.step_seconds:.3f} s here, lerobot-train's own timing on 1 thread(s); published "
+        f"{row.train_minutes:.1f} min for {row.steps} on {row.device} at {row.step_seconds:.3f} s a step)"
     )
-    assert said[1].startswith("training: OMP_NUM_THREADS=1 ")
+    assert said[2].startswith("training: OMP_NUM_THREADS=1 ")
+    assert len(commands) == 1 and result["probe_step_seconds"] == 2 * row.step_seconds
+    # the same request again: its checkpoint reused, with nothing timed and no minutes expected of it, and the
+    # readings its training had rather than the day's
+    said.clear()
+    result, here = train_policy(planned, said.append, measure=lambda n: Reading(37.5, 0.5))
+    assert result["reused"] is True and len(commands) == 1
+    assert here == slow and result["probe_step_seconds"] == 2 * row.step_seconds
+    assert not [line for line in said if line.startswith(("timing", "expected training time", "the machine was"))]
+    assert any(line.startswith("  reused the checkpoint the same command trained") for line in said)
 
 
-def test_reproduce_says_when_the_machine_was_busy_as_the_reference_workload_was_timed(tmp_path):
+def test_reproduce_says_when_the_machine_was_busy_as_the_reference_workload_was_timed(tmp_path, monkeypatch):
     """Another process on the same cores stalls torch's threads (docs/training.md, "A busy machine"):
     the reading is said to be busy before the minutes it scales, and marked in the verdict and reproduce.json."""
     from kitbench.reproduce import ReproduceConfig, plan, train_policy, verdict
@@ -287,19 +312,7 @@ def test_reproduce_says_when_the_machine_was_busy_as_the_reference_workload_was_
 
     row = load_published()[CONFIG]
     planned = plan(ReproduceConfig(CONFIG, out=tmp_path, steps=row.steps))
-    checkpoint = planned.training.train_dir / "checkpoints" / "last" / "pretrained_model"
-    checkpoint.mkdir(parents=True)
-    (checkpoint / "model.safetensors").write_bytes(b"weights")
-    trained = {
-        "seconds": 60.0,
-        "steps": row.steps,
-        "reference_after": 1.6,
-        "reference_after_share": 0.98,
-        "command": [],
-    }
-    (planned.policy_dir / run.TRAIN_STAMP).write_text(
-        json.dumps({"request": planned.training.request(), "trained": trained})
-    )
+    _stub_training(monkeypatch, step=row.step_seconds, after=1.6)
     said: list[str] = []
     result, here = train_policy(planned, said.append, measure=lambda n: Reading(37.5, 0.5))
     assert said[0] == (
@@ -307,13 +320,14 @@ def test_reproduce_says_when_the_machine_was_busy_as_the_reference_workload_was_
         "100% alone: another process held the cores), so its 37.5 s say little of this machine and minutes scaled "
         "by it read long"
     )
-    assert said[1].startswith("expected training time: about ") and "here 37.5 s on 1 thread(s)" in said[1]
+    assert said[2].startswith("expected training time: about ")
     said.clear()
     verdict(planned, row.success // 3, row.episodes // 3, {**result, "step_seconds": None}, here, said.append)
     assert "reference workload 37.5 s (busy) before it, 1.6 s after;" in said[-1]
     stamped = json.loads(planned.result.read_text())
     assert (stamped["reference_share"], stamped["reference_share_after_training"]) == (0.5, 0.98)
     # a quiet reading is not marked
+    (planned.policy_dir / run.TRAIN_STAMP).unlink()  # trained again
     result, _ = train_policy(planned, said.append, measure=lambda n: Reading(1.6, 0.97))
     said.clear()
     verdict(planned, row.success // 3, row.episodes // 3, {**result, "step_seconds": None}, 1.6, said.append)
@@ -346,7 +360,17 @@ def test_the_reference_workload_beside_busy_processes_reads_busy(monkeypatch):
 def test_a_row_without_a_reference_workload_is_not_scaled():
     from kitbench.reproduce import expectation
 
-    gpu = load_published()["act_assembling_kits_rgb"]
+    # a row as the GPU rows were published before their held-out seeds: minutes on one H100, nothing to scale them by
+    gpu = dataclasses.replace(
+        load_published()["act_assembling_kits_rgb"],
+        train_minutes=9.9,
+        device="one H100",
+        cpu=False,
+        reference_seconds=None,
+        train_reference_seconds=None,
+        step_seconds=None,
+        threads=None,
+    )
     assert gpu.train_minutes_here(2.0) is None
     assert expectation(gpu, 2.0, 8).startswith(
         "expected training time: not scaled here (the published 9.9 min on one H100 came without a reference workload)"

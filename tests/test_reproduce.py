@@ -105,6 +105,7 @@ def test_reproduce_runs_end_to_end_and_compares_with_where_a_new_seed_lands(
     printed = capsys.readouterr().out
     assert status == 3 and "what the published runs predict" in printed
     assert "reused the checkpoint the same command trained" in printed and "timing" not in printed
+    assert "expected training time" not in printed  # nothing left to expect
     # the readings the training had, not the ones taken the day it is reused
     again = json.loads((out / f"seed{SEED}" / "reproduce.json").read_text())
     for key in ("reference_seconds", "reference_share", "probe_step_seconds"):
