@@ -246,26 +246,13 @@ def test_the_learnability_bench_reads_the_same_rows_as_reproduce():
 
 
 def _stub_training(monkeypatch, step: float, after: float, after_share: float = 0.98) -> list[list[str]]:
-    """lerobot-train stood in for: its probe takes `step` seconds a step, the training writes a checkpoint where it
-    would, and the reference workload after it reads `after`. The training commands it was asked to run."""
-    from kitbench.training import pace, run
-
-    commands: list[list[str]] = []
-
-    def fake_train(command, log, env=None, follow=None):
-        commands.append(command)
-        out = Path(next(a for a in command if a.startswith("--output_dir=")).split("=", 1)[1])
-        model = out / "checkpoints" / "last" / "pretrained_model"
-        model.mkdir(parents=True)
-        (model / "model.safetensors").write_bytes(b"weights")
-        (model / "train_config.json").write_text(json.dumps({"steps": 3, "seed": 1000}))
-        log.write_text("num_total_params=5\n")
-        return 60.0
+    """lerobot-train stood in for (`tests.test_reproduce`'s stand-in), its probe taking `step` seconds a step; the
+    reference workload after it reads `after`. The training commands it was asked to run."""
+    from kitbench.training import pace
+    from tests.test_reproduce import _trained_here
 
     monkeypatch.setattr(pace, "probe", lambda training, steps=None: step)
-    monkeypatch.setattr(run, "run_logged", fake_train)
-    monkeypatch.setattr(run, "read", lambda threads: Reading(after, after_share))
-    return commands
+    return _trained_here(monkeypatch, Reading(after, after_share))
 
 
 def test_reproduce_says_what_the_training_should_take_here_before_it_trains(tmp_path, monkeypatch):

@@ -202,8 +202,9 @@ def _finished(policy_dir: Path, training) -> bytes:
     return weights
 
 
-def _trained_here(monkeypatch) -> list[list[str]]:
-    """lerobot-train stood in for: each command it is asked to run, and a checkpoint where it would write one."""
+def _trained_here(monkeypatch, after: Reading | None = None) -> list[list[str]]:
+    """lerobot-train stood in for: each command it is asked to run, and a checkpoint where it would write one; the
+    reference workload read after it reads `after` (1.0 s, alone on its threads, when not given)."""
     from kitbench.training import run
 
     commands: list[list[str]] = []
@@ -219,7 +220,7 @@ def _trained_here(monkeypatch) -> list[list[str]]:
         return 2.0
 
     monkeypatch.setattr(run, "run_logged", fake_train)
-    monkeypatch.setattr(run, "read", lambda threads: Reading(1.0, 1.0))
+    monkeypatch.setattr(run, "read", lambda threads: after or Reading(1.0, 1.0))
     return commands
 
 
